@@ -1,0 +1,1 @@
+"""Pure localization algorithms: numpy / OpenCV / numba only, never rclpy."""

@@ -1,0 +1,324 @@
+"""The one occupancy-grid map type, with nav2 map_server YAML+image I/O.
+
+``GridMap.data`` follows ``nav_msgs/OccupancyGrid``: shape ``(height, width)``,
+row 0 at the map origin (lowest y), values ``-1`` (unknown) or ``0..100``
+(occupancy probability in percent). ``data[iy, ix]`` is the cell whose lower
+left corner is ``origin + (ix, iy) * resolution``.
+
+Loading follows nav2 map_server (``nav2_map_server/src/map_io.cpp``):
+
+* ``trinary``: ``occ = (255 - pixel) / 255`` (or ``pixel / 255`` when
+  ``negate``); ``occ > occupied_thresh`` -> 100, ``occ < free_thresh`` -> 0,
+  otherwise -1.
+* ``scale``: as trinary, but values between the thresholds are scaled
+  linearly to ``0..100`` instead of unknown.
+* ``raw``: the pixel value itself; values above 100 are unknown.
+
+The image's first row is the top of the map (highest y), so it is flipped.
+A rotated origin (non-zero yaw) is refused rather than silently ignored.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import MapError
+
+__all__ = ["GridMap", "load_map_yaml", "MAP_MODES"]
+
+MAP_MODES = ("trinary", "scale", "raw")
+
+# What nav2 map_saver writes for each cell class in a trinary PGM.
+_PGM_OCCUPIED, _PGM_FREE, _PGM_UNKNOWN = 0, 254, 205
+
+
+@dataclass(eq=False)
+class GridMap:
+    """Occupancy grid in the ``map`` frame.
+
+    Attributes:
+        data: ``(height, width)`` int8 occupancy, -1 unknown, 0..100 percent.
+        resolution: cell size [m].
+        origin: ``(x, y)`` of the lower left corner of cell (0, 0) [m].
+        occupied_threshold: a cell with ``data >= occupied_threshold`` is an obstacle.
+        free_threshold: a cell with ``0 <= data <= free_threshold`` is free.
+    """
+
+    data: NDArray[np.int8]
+    resolution: float
+    origin: tuple[float, float] = (0.0, 0.0)
+    occupied_threshold: int = 65
+    free_threshold: int = 19
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        data = np.asarray(self.data)
+        if data.ndim != 2 or data.size == 0:
+            raise MapError(f"map data must be a non-empty 2-D array, got shape {data.shape!r}")
+        if not np.isfinite(self.resolution) or self.resolution <= 0.0:
+            raise MapError(f"map resolution must be positive, got {self.resolution!r}")
+        if len(self.origin) != 2 or not np.all(np.isfinite(self.origin)):
+            raise MapError(f"map origin must be two finite numbers, got {self.origin!r}")
+        self.data = np.ascontiguousarray(data, dtype=np.int8)
+        self.resolution = float(self.resolution)
+        self.origin = (float(self.origin[0]), float(self.origin[1]))
+
+    # -- geometry -----------------------------------------------------------------
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` of the map area [m]."""
+        x0, y0 = self.origin
+        return (x0, x0 + self.width * self.resolution, y0, y0 + self.height * self.resolution)
+
+    def world_to_cell(self, xy: ArrayLike) -> NDArray[np.int64]:
+        """Cell indices ``(..., 2)`` as ``(ix, iy)`` of world points ``(..., 2)``; may be off the map."""
+        xy = np.asarray(xy, dtype=np.float64)
+        origin = np.asarray(self.origin)
+        return np.floor((xy - origin) / self.resolution).astype(np.int64)
+
+    def cell_to_world(self, cells: ArrayLike) -> NDArray[np.float64]:
+        """World coordinates ``(..., 2)`` of the centres of cells ``(..., 2)`` given as ``(ix, iy)``."""
+        cells = np.asarray(cells, dtype=np.float64)
+        return (cells + 0.5) * self.resolution + np.asarray(self.origin)
+
+    def in_bounds(self, cells: ArrayLike) -> NDArray[np.bool_]:
+        cells = np.asarray(cells)
+        return (
+            (cells[..., 0] >= 0)
+            & (cells[..., 0] < self.width)
+            & (cells[..., 1] >= 0)
+            & (cells[..., 1] < self.height)
+        )
+
+    # -- cell classes -------------------------------------------------------------
+    @property
+    def occupied_mask(self) -> NDArray[np.bool_]:
+        return self.data >= self.occupied_threshold
+
+    @property
+    def free_mask(self) -> NDArray[np.bool_]:
+        return (self.data >= 0) & (self.data <= self.free_threshold)
+
+    @property
+    def unknown_mask(self) -> NDArray[np.bool_]:
+        return ~(self.occupied_mask | self.free_mask)
+
+    def is_free(self, xy: ArrayLike) -> NDArray[np.bool_]:
+        """Whether world points ``(..., 2)`` fall in free cells (off-map is not free)."""
+        cells = self.world_to_cell(xy)
+        inside = self.in_bounds(cells)
+        out = np.zeros(inside.shape, dtype=bool)
+        ix, iy = cells[..., 0][inside], cells[..., 1][inside]
+        out[inside] = self.free_mask[iy, ix]
+        return out
+
+    def free_cell_centres(self) -> NDArray[np.float64]:
+        """World coordinates ``(N, 2)`` of the centres of all free cells."""
+        if "free_centres" not in self._cache:
+            iy, ix = np.nonzero(self.free_mask)
+            self._cache["free_centres"] = self.cell_to_world(np.stack([ix, iy], axis=-1))
+        return self._cache["free_centres"]
+
+    def sample_free_poses(self, count: int, rng: np.random.Generator) -> NDArray[np.float64]:
+        """``count`` poses uniform over free space (x, y jittered inside the cell, theta uniform)."""
+        centres = self.free_cell_centres()
+        if len(centres) == 0:
+            raise MapError("the map has no free cell to sample poses from")
+        picks = centres[rng.integers(0, len(centres), size=count)]
+        jitter = rng.uniform(-0.5, 0.5, size=(count, 2)) * self.resolution
+        theta = rng.uniform(-np.pi, np.pi, size=(count, 1))
+        return np.hstack([picks + jitter, theta])
+
+    def distance_field(self, *, unknown_is_obstacle: bool = False) -> NDArray[np.float32]:
+        """Euclidean distance [m] from each cell centre to the nearest obstacle cell centre.
+
+        Cells with no obstacle on the map get the largest distance the map allows.
+        """
+        key = f"distance_field_{unknown_is_obstacle}"
+        if key not in self._cache:
+            obstacles = self.occupied_mask | (self.unknown_mask if unknown_is_obstacle else False)
+            if not obstacles.any():
+                diagonal = float(np.hypot(self.width, self.height) * self.resolution)
+                field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
+            else:
+                # distanceTransform measures the distance to the nearest zero pixel.
+                source = np.where(obstacles, 0, 255).astype(np.uint8)
+                pixels = cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+                field_m = (pixels * self.resolution).astype(np.float32)
+            self._cache[key] = field_m
+        return self._cache[key]
+
+    def fingerprint(self) -> str:
+        """A short hash of the map content, for keying on-disk caches."""
+        import hashlib
+
+        digest = hashlib.sha256()
+        digest.update(self.data.tobytes())
+        digest.update(np.array([self.resolution, *self.origin], dtype=np.float64).tobytes())
+        digest.update(np.array(self.data.shape, dtype=np.int64).tobytes())
+        return digest.hexdigest()[:16]
+
+    # -- I/O ----------------------------------------------------------------------
+    @classmethod
+    def from_occupancy_grid(
+        cls,
+        *,
+        width: int,
+        height: int,
+        resolution: float,
+        origin_x: float,
+        origin_y: float,
+        origin_yaw: float,
+        data: ArrayLike,
+    ) -> GridMap:
+        """Build from the fields of a ``nav_msgs/OccupancyGrid`` (row-major, row 0 at the origin)."""
+        if abs(origin_yaw) > 1e-6:
+            raise MapError(f"a rotated map origin is not supported: yaw {origin_yaw!r} rad")
+        flat = np.asarray(data, dtype=np.int16)
+        if width <= 0 or height <= 0 or flat.size != width * height:
+            raise MapError(
+                f"occupancy grid of {width!r} x {height!r} cells carries {flat.size} values"
+            )
+        if flat.size and (flat.min() < -1 or flat.max() > 100):
+            raise MapError(f"occupancy values must be -1..100, got range [{flat.min()}, {flat.max()}]")
+        return cls(flat.reshape(height, width).astype(np.int8), resolution, (origin_x, origin_y))
+
+    def occupancy_grid_fields(self) -> dict[str, Any]:
+        """The fields of a ``nav_msgs/OccupancyGrid`` for this map (data as a flat int8 array)."""
+        return {
+            "width": self.width,
+            "height": self.height,
+            "resolution": self.resolution,
+            "origin_x": self.origin[0],
+            "origin_y": self.origin[1],
+            "data": self.data.reshape(-1),
+        }
+
+    def save(self, yaml_path: str | os.PathLike[str]) -> Path:
+        """Write a nav2 map_server trinary map: ``<name>.yaml`` beside ``<name>.pgm``."""
+        yaml_path = Path(yaml_path)
+        image_path = yaml_path.with_suffix(".pgm")
+        image = np.full(self.data.shape, _PGM_UNKNOWN, dtype=np.uint8)
+        image[self.free_mask] = _PGM_FREE
+        image[self.occupied_mask] = _PGM_OCCUPIED
+        yaml_path.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(image_path), np.flipud(image)):
+            raise MapError(f"could not write map image {str(image_path)!r}")
+        meta = {
+            "image": image_path.name,
+            "mode": "trinary",
+            "resolution": self.resolution,
+            "origin": [self.origin[0], self.origin[1], 0.0],
+            "negate": 0,
+            "occupied_thresh": 0.65,
+            "free_thresh": 0.196,
+        }
+        yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+        return yaml_path
+
+
+def _field(meta: dict[str, Any], name: str, path: Path) -> Any:
+    if name not in meta:
+        raise MapError(f"map YAML {str(path)!r} has no field {name!r}")
+    return meta[name]
+
+
+def _number(meta: dict[str, Any], name: str, path: Path, default: float | None = None) -> float:
+    value = meta.get(name, default) if default is not None else _field(meta, name, path)
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise MapError(f"map YAML {str(path)!r}: field {name!r} must be a number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise MapError(f"map YAML {str(path)!r}: field {name!r} must be finite, got {value!r}")
+    return number
+
+
+def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
+    """Load a nav2 map_server map (YAML + PGM/PNG image).
+
+    Raises:
+        MapError: naming the file, the field and the bad value.
+    """
+    path = Path(yaml_path)
+    if not path.is_file():
+        raise MapError(f"map YAML {str(path)!r} does not exist")
+    try:
+        meta = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise MapError(f"map YAML {str(path)!r} is not valid YAML: {exc}") from exc
+    if not isinstance(meta, dict):
+        raise MapError(f"map YAML {str(path)!r} must hold a mapping, got {type(meta).__name__}")
+
+    image_name = _field(meta, "image", path)
+    resolution = _number(meta, "resolution", path)
+    if resolution <= 0.0:
+        raise MapError(f"map YAML {str(path)!r}: field 'resolution' must be positive, got {resolution!r}")
+    origin = _field(meta, "origin", path)
+    if not isinstance(origin, (list, tuple)) or len(origin) != 3:
+        raise MapError(f"map YAML {str(path)!r}: field 'origin' must be [x, y, yaw], got {origin!r}")
+    try:
+        origin_x, origin_y, origin_yaw = (float(v) for v in origin)
+    except (TypeError, ValueError):
+        raise MapError(f"map YAML {str(path)!r}: field 'origin' must be numbers, got {origin!r}") from None
+    if abs(origin_yaw) > 1e-6:
+        raise MapError(f"map YAML {str(path)!r}: a rotated origin is not supported, yaw {origin_yaw!r}")
+    mode = str(meta.get("mode", "trinary"))
+    if mode not in MAP_MODES:
+        raise MapError(f"map YAML {str(path)!r}: field 'mode' must be one of {MAP_MODES}, got {mode!r}")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise MapError(f"map YAML {str(path)!r}: field 'negate' must be 0 or 1, got {negate!r}")
+    occupied_thresh = _number(meta, "occupied_thresh", path, 0.65)
+    free_thresh = _number(meta, "free_thresh", path, 0.196)
+    if not 0.0 <= free_thresh <= occupied_thresh <= 1.0:
+        raise MapError(
+            f"map YAML {str(path)!r}: need 0 <= free_thresh <= occupied_thresh <= 1, "
+            f"got free_thresh {free_thresh!r}, occupied_thresh {occupied_thresh!r}"
+        )
+
+    image_path = (path.parent / str(image_name)).resolve()
+    if not image_path.is_file():
+        raise MapError(f"map YAML {str(path)!r}: field 'image' names a missing file {str(image_path)!r}")
+    pixels = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    if pixels is None or pixels.size == 0:
+        raise MapError(f"map image {str(image_path)!r} is corrupt or not an image")
+    if pixels.ndim == 3:  # colour (and alpha) images: map_server averages the colour channels
+        pixels = pixels[..., :3].mean(axis=2)
+    pixels = np.flipud(pixels.astype(np.float64))
+
+    if mode == "raw":
+        data = np.where(pixels <= 100, pixels, -1)
+    else:
+        occ = pixels / 255.0 if negate else (255.0 - pixels) / 255.0
+        data = np.full(pixels.shape, -1.0)
+        data[occ > occupied_thresh] = 100
+        data[occ < free_thresh] = 0
+        if mode == "scale":
+            between = (occ >= free_thresh) & (occ <= occupied_thresh)
+            span = max(occupied_thresh - free_thresh, 1e-9)
+            data[between] = np.rint(99.0 * (occ[between] - free_thresh) / span)
+    return GridMap(
+        data.astype(np.int8),
+        resolution,
+        (origin_x, origin_y),
+        # In scale mode the in-between values are graded, not obstacles nor free space.
+        occupied_threshold=100 if mode == "scale" else 65,
+        free_threshold=0 if mode == "scale" else 19,
+    )

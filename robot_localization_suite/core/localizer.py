@@ -1,0 +1,103 @@
+"""The interface every localizer in ``core/`` offers, and what it returns.
+
+Nodes, the deterministic replay and the benchmark talk to localizers only
+through :class:`Localizer` (laser methods) or :class:`CameraLocalizer`
+(camera methods), so that any method can be dropped into the same harness.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .grid_map import GridMap
+from .scan import Scan
+
+__all__ = [
+    "LocalizerStatus",
+    "Estimate",
+    "Localizer",
+    "CameraLocalizer",
+    "GlobalFixer",
+]
+
+
+class LocalizerStatus(enum.Enum):
+    """What a localizer believes about its own estimate (published on /diagnostics)."""
+
+    INITIALIZING = "INITIALIZING"
+    LOCALIZED = "LOCALIZED"
+    AMBIGUOUS = "AMBIGUOUS"
+    LOST = "LOST"
+
+
+@dataclass
+class Estimate:
+    """One output of a localizer.
+
+    Attributes:
+        stamp: the stamp of the input that produced it [s].
+        pose: ``(3,)`` best pose in the map [m, m, rad].
+        covariance: ``(3, 3)`` covariance of (x, y, theta).
+        status: the localizer's own verdict.
+        candidates: ``(K, 3)`` particles, candidates or box centres, best first where ranked.
+        candidate_weights: ``(K,)`` weights of the candidates, or None.
+        details: method-specific extras for diagnostics and visualisation
+            (e.g. ``hypotheses``, ``boxes``, ``place``); keys are snake_case strings.
+    """
+
+    stamp: float
+    pose: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    status: LocalizerStatus
+    candidates: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    candidate_weights: NDArray[np.float64] | None = None
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Localizer(Protocol):
+    """A laser localizer. Every call returns quickly and never raises on bad readings."""
+
+    def set_map(self, grid_map: GridMap) -> None:
+        """Use this map from now on (may trigger precomputation)."""
+
+    def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
+        """Record the odometry pose ``(3,)`` in the ``odom`` frame at ``stamp``."""
+
+    def on_scan(self, scan: Scan) -> Estimate | None:
+        """Process a scan; return an estimate when the method produces one."""
+
+    def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
+        """Restart around ``pose`` with the ``(3, 3)`` covariance (RViz "2D Pose Estimate")."""
+
+    def reinitialize(self) -> None:
+        """Forget everything and localize globally (``~/reinitialize_global_localization``)."""
+
+    def request_nomotion_update(self) -> None:
+        """Update on the next scan even without motion (``~/request_nomotion_update``)."""
+
+
+@runtime_checkable
+class CameraLocalizer(Protocol):
+    """A camera localizer: images instead of scans."""
+
+    def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None: ...
+
+    def on_image(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None: ...
+
+    def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None: ...
+
+    def reinitialize(self) -> None: ...
+
+
+@runtime_checkable
+class GlobalFixer(Protocol):
+    """A method that can localize from a single scan with no prior (``rls_bench --global-fixes``)."""
+
+    def global_fix(self, scan: Scan) -> Estimate:
+        """Candidates ranked best first; ``pose`` is the best one."""

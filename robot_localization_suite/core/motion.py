@@ -1,0 +1,172 @@
+"""The odometry motion model shared by every localizer and the simulator.
+
+Thrun, Burgard & Fox, *Probabilistic Robotics*, table 5.6 (``sample_motion_model_odometry``):
+a motion between two odometry poses is decomposed into a first rotation
+``rot1``, a translation ``trans`` and a second rotation ``rot2``, each perturbed
+by zero-mean noise whose spread grows with the motion (alpha1..alpha4).
+
+As nav2_amcl does (``nav2_amcl/src/motion_model/differential_motion_model.cpp``),
+``alpha`` scales a *standard deviation* (``std = sqrt(a1 rot1^2 + a2 trans^2)``),
+rotation noise uses the smaller of the forward and backward rotations so that
+driving backwards is not penalised, and ``rot1`` is 0 for tiny translations.
+The omnidirectional variant (nav2 ``OmniMotionModel``) adds ``alpha5`` for strafe.
+
+``bounds`` gives the guaranteed-set version used by interval methods: every
+component of the decomposition lies in ``value +- (relative * |value| + absolute)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .se2 import angle_difference, wrap_angle
+
+__all__ = ["OdometryDelta", "OdometryMotionModel", "MotionBounds", "odometry_delta", "apply_delta"]
+
+# Below this translation [m] the heading of travel is meaningless (nav2 uses 0.01 m).
+_MIN_TRANSLATION_FOR_HEADING = 0.01
+
+
+@dataclass(frozen=True)
+class OdometryDelta:
+    """Rotation-translation-rotation decomposition of an odometry step [rad, m, rad]."""
+
+    rot1: float
+    trans: float
+    rot2: float
+
+    @property
+    def rotation(self) -> float:
+        return float(wrap_angle(self.rot1 + self.rot2))
+
+
+def odometry_delta(previous: ArrayLike, current: ArrayLike) -> OdometryDelta:
+    """Decompose the motion from odometry pose ``previous`` to ``current`` (both ``(3,)``)."""
+    previous = np.asarray(previous, dtype=np.float64)
+    current = np.asarray(current, dtype=np.float64)
+    dx, dy = current[0] - previous[0], current[1] - previous[1]
+    trans = float(np.hypot(dx, dy))
+    rot1 = 0.0 if trans < _MIN_TRANSLATION_FOR_HEADING else float(angle_difference(np.arctan2(dy, dx), previous[2]))
+    rot2 = float(angle_difference(angle_difference(current[2], previous[2]), rot1))
+    return OdometryDelta(rot1, trans, rot2)
+
+
+def apply_delta(poses: ArrayLike, rot1: ArrayLike, trans: ArrayLike, rot2: ArrayLike) -> NDArray[np.float64]:
+    """Move poses ``(N, 3)`` by (possibly per-pose) rot1, trans, rot2."""
+    poses = np.asarray(poses, dtype=np.float64)
+    heading = poses[..., 2] + rot1
+    out = np.empty_like(poses)
+    out[..., 0] = poses[..., 0] + trans * np.cos(heading)
+    out[..., 1] = poses[..., 1] + trans * np.sin(heading)
+    out[..., 2] = wrap_angle(heading + rot2)
+    return out
+
+
+@dataclass(frozen=True)
+class MotionBounds:
+    """Guaranteed bounds of an odometry step: ``[lo, hi]`` for rot1, trans, rot2."""
+
+    rot1: tuple[float, float]
+    trans: tuple[float, float]
+    rot2: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class OdometryMotionModel:
+    """Probabilistic odometry motion model with nav2_amcl's parameters.
+
+    Attributes:
+        alpha1: rotation noise from rotation (nav2 ``alpha1``; default 0.2 in nav2).
+        alpha2: rotation noise from translation (``alpha2``).
+        alpha3: translation noise from translation (``alpha3``).
+        alpha4: translation noise from rotation (``alpha4``).
+        alpha5: strafe noise from translation, omnidirectional model only (``alpha5``).
+        omnidirectional: use nav2's ``OmniMotionModel`` instead of the differential one.
+    """
+
+    alpha1: float = 0.2
+    alpha2: float = 0.2
+    alpha3: float = 0.2
+    alpha4: float = 0.2
+    alpha5: float = 0.2
+    omnidirectional: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("alpha1", "alpha2", "alpha3", "alpha4", "alpha5"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0.0:
+                raise ValueError(f"motion model {name} must be finite and >= 0, got {value!r}")
+
+    def sample(
+        self,
+        poses: ArrayLike,
+        previous_odom: ArrayLike,
+        current_odom: ArrayLike,
+        rng: np.random.Generator,
+    ) -> NDArray[np.float64]:
+        """Propagate poses ``(N, 3)`` through the odometry step with sampled noise."""
+        poses = np.asarray(poses, dtype=np.float64)
+        count = poses.shape[0]
+        if self.omnidirectional:
+            return self._sample_omni(poses, np.asarray(previous_odom, float), np.asarray(current_odom, float), rng)
+        delta = odometry_delta(previous_odom, current_odom)
+        # Driving backwards must not count as a half-turn of rotation noise.
+        rot1_noise = min(abs(delta.rot1), abs(float(angle_difference(delta.rot1, np.pi))))
+        rot2_noise = min(abs(delta.rot2), abs(float(angle_difference(delta.rot2, np.pi))))
+        std_rot1 = np.sqrt(self.alpha1 * rot1_noise**2 + self.alpha2 * delta.trans**2)
+        std_trans = np.sqrt(self.alpha3 * delta.trans**2 + self.alpha4 * (rot1_noise**2 + rot2_noise**2))
+        std_rot2 = np.sqrt(self.alpha1 * rot2_noise**2 + self.alpha2 * delta.trans**2)
+        rot1 = delta.rot1 - rng.normal(0.0, 1.0, count) * std_rot1
+        trans = delta.trans - rng.normal(0.0, 1.0, count) * std_trans
+        rot2 = delta.rot2 - rng.normal(0.0, 1.0, count) * std_rot2
+        return apply_delta(poses, rot1, trans, rot2)
+
+    def _sample_omni(self, poses, previous_odom, current_odom, rng):
+        count = poses.shape[0]
+        dx, dy = current_odom[0] - previous_odom[0], current_odom[1] - previous_odom[1]
+        trans = float(np.hypot(dx, dy))
+        rot = float(angle_difference(current_odom[2], previous_odom[2]))
+        # Direction of travel in the robot frame, applied in each particle's frame.
+        bearing = float(angle_difference(np.arctan2(dy, dx), previous_odom[2]))
+        std_trans = np.sqrt(self.alpha3 * trans**2 + self.alpha1 * rot**2)
+        std_rot = np.sqrt(self.alpha4 * rot**2 + self.alpha2 * trans**2)
+        std_strafe = np.sqrt(self.alpha1 * rot**2 + self.alpha5 * trans**2)
+        trans_hat = trans + rng.normal(0.0, 1.0, count) * std_trans
+        strafe_hat = rng.normal(0.0, 1.0, count) * std_strafe
+        rot_hat = rot + rng.normal(0.0, 1.0, count) * std_rot
+        heading = poses[:, 2] + bearing
+        out = np.empty_like(poses)
+        out[:, 0] = poses[:, 0] + trans_hat * np.cos(heading) - strafe_hat * np.sin(heading)
+        out[:, 1] = poses[:, 1] + trans_hat * np.sin(heading) + strafe_hat * np.cos(heading)
+        out[:, 2] = wrap_angle(poses[:, 2] + rot_hat)
+        return out
+
+    @staticmethod
+    def bounds(
+        previous_odom: ArrayLike,
+        current_odom: ArrayLike,
+        *,
+        relative_translation: float,
+        absolute_translation: float,
+        relative_rotation: float,
+        absolute_rotation: float,
+    ) -> MotionBounds:
+        """Guaranteed bounds of the true step, for interval methods.
+
+        Each component ``v`` of the decomposition is bounded by
+        ``v +- (relative * |v| + absolute)``; the caller states the bounds it trusts.
+        """
+        delta = odometry_delta(previous_odom, current_odom)
+
+        def around(value: float, relative: float, absolute: float) -> tuple[float, float]:
+            half = relative * abs(value) + absolute
+            return (value - half, value + half)
+
+        return MotionBounds(
+            rot1=around(delta.rot1, relative_rotation, absolute_rotation),
+            trans=around(delta.trans, relative_translation, absolute_translation),
+            rot2=around(delta.rot2, relative_rotation, absolute_rotation),
+        )

@@ -1,0 +1,1 @@
+"""launch of robot_localization_suite."""

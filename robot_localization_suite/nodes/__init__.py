@@ -1,0 +1,1 @@
+"""nodes of robot_localization_suite."""

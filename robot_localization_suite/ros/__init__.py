@@ -1,0 +1,1 @@
+"""ros of robot_localization_suite."""

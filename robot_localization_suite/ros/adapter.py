@@ -1,0 +1,204 @@
+"""Messages in, core localizer, messages out: what a localizer node and the replay share.
+
+The adapter owns everything between a ROS message and a core call:
+conversion, the laser mounting offset, rejection of bad or out-of-order input
+with throttled log messages, update timing, and building the output messages.
+A node wires it to subscriptions and publishers; ``rls_bench`` calls it
+directly with the messages of a bag, so both exercise the same code.
+
+Mounting offset: core localizers estimate the pose of the *laser*. The adapter
+gives them laser odometry (``odom (+) mount``) and laser initial poses, and
+turns their laser pose back into the base pose (``laser (+) mount^-1``), which
+is exact for a rigid mount and keeps every core method free of the offset.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..core.errors import LocalizationSuiteError, MapError, ScanError
+from ..core.localizer import CameraLocalizer, Estimate, Localizer
+from ..core.scan import LaserMount
+from ..core.se2 import compose, inverse
+from . import conversions
+
+__all__ = ["AdapterOutput", "LocalizerAdapter", "ThrottledLog"]
+
+
+class ThrottledLog:
+    """Log through ``sink(level, text)`` at most once per ``period_s`` for each key."""
+
+    def __init__(self, sink: Callable[[str, str], None], period_s: float = 5.0) -> None:
+        self._sink = sink
+        self._period = period_s
+        self._last: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+
+    def __call__(self, level: str, key: str, text: str) -> None:
+        self.counts[key] = self.counts.get(key, 0) + 1
+        now = time.monotonic()
+        if now - self._last.get(key, -np.inf) >= self._period:
+            self._last[key] = now
+            repeats = self.counts[key]
+            suffix = f" ({repeats} times so far)" if repeats > 1 else ""
+            self._sink(level, text + suffix)
+
+
+@dataclass
+class AdapterOutput:
+    """What one update produced: the core estimate, its update time, and the messages to publish."""
+
+    estimate: Estimate
+    update_ms: float
+    pose: Any
+    candidates: Any
+    diagnostics: Any
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class LocalizerAdapter:
+    """Bridge between ROS messages and one core localizer.
+
+    Args:
+        localizer: a :class:`Localizer` or :class:`CameraLocalizer`.
+        node_name: used in diagnostics.
+        log: ``log(level, text)`` with level in ``debug|info|warn|error``.
+        mount: laser pose in the base frame.
+        extras_builder: turns an estimate into method-specific messages, keyed by
+            topic suffix (e.g. ``{"boxes": MarkerArray}``).
+    """
+
+    def __init__(
+        self,
+        localizer: Localizer | CameraLocalizer,
+        *,
+        node_name: str,
+        log: Callable[[str, str], None],
+        mount: LaserMount | None = None,
+        extras_builder: Callable[[Estimate], dict[str, Any]] | None = None,
+    ) -> None:
+        self.localizer = localizer
+        self.node_name = node_name
+        self.log = ThrottledLog(log)
+        self._info = log
+        self.mount = mount or LaserMount()
+        self._mount_inv = inverse(self.mount.pose)
+        self._extras_builder = extras_builder
+        self._last_odom_stamp = -np.inf
+        self._last_scan_stamp = -np.inf
+        self._last_beam_count: int | None = None
+        self.has_map = False
+
+    # -- inputs -------------------------------------------------------------------
+    def on_map_msg(self, msg: Any) -> bool:
+        try:
+            grid_map = conversions.grid_map_from_msg(msg)
+        except MapError as exc:
+            self.log("error", "map", f"ignoring map message: {exc}")
+            return False
+        self.set_map(grid_map)
+        return True
+
+    def set_map(self, grid_map: Any) -> None:
+        if not hasattr(self.localizer, "set_map"):
+            return
+        self._info("info", f"map {grid_map.width} x {grid_map.height} cells at {grid_map.resolution} m received")
+        self.localizer.set_map(grid_map)
+        self.has_map = True
+
+    def on_odom_msg(self, msg: Any) -> None:
+        stamp, pose = conversions.odometry_from_msg(msg)
+        if not np.all(np.isfinite(pose)):
+            self.log("warn", "odom_nan", f"ignoring odometry with non-finite pose {pose.tolist()!r}")
+            return
+        if stamp < self._last_odom_stamp:
+            self.log(
+                "warn",
+                "odom_time",
+                f"ignoring odometry stamped {stamp:.3f} s, older than the last one ({self._last_odom_stamp:.3f} s)",
+            )
+            return
+        self._last_odom_stamp = stamp
+        self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
+
+    def on_initial_pose_msg(self, msg: Any) -> None:
+        pose, covariance = conversions.initial_pose_from_msg(msg)
+        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(covariance))):
+            self.log("warn", "initialpose", f"ignoring initial pose with non-finite values {pose.tolist()!r}")
+            return
+        self._info("info", f"initial pose x={pose[0]:.2f} y={pose[1]:.2f} yaw={pose[2]:.2f}")
+        self.localizer.set_initial_pose(compose(pose, self.mount.pose), covariance)
+
+    def reinitialize(self) -> None:
+        self._info("info", "global localization requested")
+        self.localizer.reinitialize()
+
+    def request_nomotion_update(self) -> None:
+        if hasattr(self.localizer, "request_nomotion_update"):
+            self.localizer.request_nomotion_update()
+
+    def on_scan_msg(self, msg: Any) -> AdapterOutput | None:
+        if not self.has_map and hasattr(self.localizer, "set_map"):
+            self.log("warn", "no_map", "scan received before any map: waiting for /map or map_yaml")
+            return None
+        try:
+            scan = conversions.scan_from_msg(msg)
+        except ScanError as exc:
+            self.log("warn", "bad_scan", f"skipping scan: {exc}")
+            return None
+        if scan.stamp < self._last_scan_stamp:
+            self.log("warn", "scan_time", f"skipping scan stamped {scan.stamp:.3f} s, older than the last one")
+            return None
+        if not scan.hit_mask.any() and not scan.no_return_mask.any():
+            self.log("warn", "no_valid_beam", f"skipping scan at {scan.stamp:.3f} s: no valid beam")
+            return None
+        if self._last_beam_count is not None and scan.beam_count != self._last_beam_count:
+            self.log("info", "beam_count", f"beam count changed from {self._last_beam_count} to {scan.beam_count}")
+        self._last_beam_count = scan.beam_count
+        self._last_scan_stamp = scan.stamp
+        return self._run(lambda: self.localizer.on_scan(scan))
+
+    def on_image_msg(self, msg: Any) -> AdapterOutput | None:
+        try:
+            image = conversions.image_from_msg(msg)
+        except ValueError as exc:
+            self.log("warn", "bad_image", f"skipping image: {exc}")
+            return None
+        stamp = conversions.stamp_to_seconds(msg.header.stamp)
+        return self._run(lambda: self.localizer.on_image(stamp, image))
+
+    # -- outputs ------------------------------------------------------------------
+    def _run(self, update: Callable[[], Estimate | None]) -> AdapterOutput | None:
+        start = time.perf_counter()
+        try:
+            estimate = update()
+        except LocalizationSuiteError as exc:
+            self.log("warn", type(exc).__name__, f"update skipped: {exc}")
+            return None
+        update_ms = (time.perf_counter() - start) * 1e3
+        if estimate is None:
+            return None
+        return self.build_output(estimate, update_ms)
+
+    def to_base(self, laser_poses: NDArray[np.float64]) -> NDArray[np.float64]:
+        return compose(laser_poses, self._mount_inv)
+
+    def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
+        estimate.pose = self.to_base(estimate.pose)
+        if len(estimate.candidates):
+            estimate.candidates = self.to_base(estimate.candidates)
+        extras = self._extras_builder(estimate) if self._extras_builder else {}
+        return AdapterOutput(
+            estimate=estimate,
+            update_ms=update_ms,
+            pose=conversions.estimate_to_pose_msg(estimate),
+            candidates=conversions.estimate_to_pose_array(estimate),
+            diagnostics=conversions.estimate_to_diagnostics(estimate, self.node_name, update_ms),
+            extras=extras,
+        )

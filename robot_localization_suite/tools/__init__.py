@@ -1,0 +1,1 @@
+"""tools of robot_localization_suite."""
