@@ -76,6 +76,7 @@ class LocalizerNode(Node):
             log=self._log,
             mount=mount,
             extras_builder=extras_builder,
+            max_candidates=self.params["max_published_candidates"],
         )
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "~/pose", RELIABLE_QOS)
         self.candidates_pub = self.create_publisher(PoseArray, "~/candidates", RELIABLE_QOS)
@@ -128,9 +129,6 @@ class LocalizerNode(Node):
         if output is None:
             return
         self.pose_pub.publish(output.pose)
-        cap = self.params["max_published_candidates"]
-        if len(output.candidates.poses) > cap:
-            output.candidates.poses = output.candidates.poses[:cap]
         self.candidates_pub.publish(output.candidates)
         self.diagnostics_pub.publish(output.diagnostics)
         for key, msg in output.extras.items():

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -50,16 +50,42 @@ class ThrottledLog:
             self._sink(level, text + suffix)
 
 
-@dataclass
 class AdapterOutput:
-    """What one update produced: the core estimate, its update time, and the messages to publish."""
+    """What one update produced: the core estimate, its update time, and the messages to publish.
 
-    estimate: Estimate
-    update_ms: float
-    pose: Any
-    candidates: Any
-    diagnostics: Any
-    extras: dict[str, Any] = field(default_factory=dict)
+    The messages are built on first access: a benchmark that reads only the
+    estimate does not pay for turning 50,000 particles into a PoseArray.
+    """
+
+    def __init__(
+        self,
+        estimate: Estimate,
+        update_ms: float,
+        node_name: str,
+        max_candidates: int,
+        extras_builder: Callable[[Estimate], dict[str, Any]] | None,
+    ) -> None:
+        self.estimate = estimate
+        self.update_ms = update_ms
+        self._node_name = node_name
+        self._max_candidates = max_candidates
+        self._extras_builder = extras_builder
+
+    @cached_property
+    def pose(self) -> Any:
+        return conversions.estimate_to_pose_msg(self.estimate)
+
+    @cached_property
+    def candidates(self) -> Any:
+        return conversions.estimate_to_pose_array(self.estimate, max_poses=self._max_candidates)
+
+    @cached_property
+    def diagnostics(self) -> Any:
+        return conversions.estimate_to_diagnostics(self.estimate, self._node_name, self.update_ms)
+
+    @cached_property
+    def extras(self) -> dict[str, Any]:
+        return self._extras_builder(self.estimate) if self._extras_builder else {}
 
 
 class LocalizerAdapter:
@@ -72,6 +98,7 @@ class LocalizerAdapter:
         mount: laser pose in the base frame.
         extras_builder: turns an estimate into method-specific messages, keyed by
             topic suffix (e.g. ``{"boxes": MarkerArray}``).
+        max_candidates: cap on the poses put in the candidates message.
     """
 
     def __init__(
@@ -82,8 +109,10 @@ class LocalizerAdapter:
         log: Callable[[str, str], None],
         mount: LaserMount | None = None,
         extras_builder: Callable[[Estimate], dict[str, Any]] | None = None,
+        max_candidates: int = 2000,
     ) -> None:
         self.localizer = localizer
+        self.max_candidates = max_candidates
         self.node_name = node_name
         self.log = ThrottledLog(log)
         self._info = log
@@ -193,12 +222,4 @@ class LocalizerAdapter:
         estimate.pose = self.to_base(estimate.pose)
         if len(estimate.candidates):
             estimate.candidates = self.to_base(estimate.candidates)
-        extras = self._extras_builder(estimate) if self._extras_builder else {}
-        return AdapterOutput(
-            estimate=estimate,
-            update_ms=update_ms,
-            pose=conversions.estimate_to_pose_msg(estimate),
-            candidates=conversions.estimate_to_pose_array(estimate),
-            diagnostics=conversions.estimate_to_diagnostics(estimate, self.node_name, update_ms),
-            extras=extras,
-        )
+        return AdapterOutput(estimate, update_ms, self.node_name, self.max_candidates, self._extras_builder)
