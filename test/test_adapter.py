@@ -1,0 +1,194 @@
+"""The message <-> core bridge (ros/adapter.py) with a tiny fake core localizer."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from robot_localization_suite.core.errors import LocalizationSuiteError
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import Estimate, LocalizerStatus
+from robot_localization_suite.core.scan import LaserMount, Scan
+from robot_localization_suite.core.se2 import angle_difference, compose, inverse
+from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.adapter import LocalizerAdapter
+
+
+class EchoLocalizer:
+    """Reports the last laser odometry pose it was given as its estimate, and records every call."""
+
+    def __init__(self) -> None:
+        self.odometry: list[tuple[float, np.ndarray]] = []
+        self.scans: list[Scan] = []
+        self.initial_poses: list[np.ndarray] = []
+        self.grid_map: GridMap | None = None
+        self.fail_next = False
+
+    def set_map(self, grid_map: GridMap) -> None:
+        self.grid_map = grid_map
+
+    def on_odometry(self, stamp: float, odom_pose: np.ndarray) -> None:
+        self.odometry.append((stamp, np.array(odom_pose)))
+
+    def on_scan(self, scan: Scan) -> Estimate | None:
+        self.scans.append(scan)
+        if self.fail_next:
+            raise LocalizationSuiteError("precomputation not ready")
+        pose = self.odometry[-1][1] if self.odometry else np.zeros(3)
+        candidates = np.array([pose, compose(pose, [0.5, 0.0, 0.0])])
+        return Estimate(scan.stamp, pose.copy(), np.eye(3) * 0.01, LocalizerStatus.LOCALIZED, candidates, details={"hypotheses": 2})
+
+    def set_initial_pose(self, pose: np.ndarray, covariance: np.ndarray) -> None:
+        self.initial_poses.append(np.array(pose))
+
+    def reinitialize(self) -> None:
+        pass
+
+    def request_nomotion_update(self) -> None:
+        pass
+
+
+class Logs:
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def __call__(self, level: str, text: str) -> None:
+        self.lines.append((level, text))
+
+    def text(self) -> str:
+        return "\n".join(text for _level, text in self.lines)
+
+
+def make_adapter(mount: LaserMount | None = None) -> tuple[LocalizerAdapter, EchoLocalizer, Logs]:
+    core, logs = EchoLocalizer(), Logs()
+    adapter = LocalizerAdapter(core, node_name="echo", log=logs, mount=mount)
+    adapter.set_map(GridMap(np.zeros((10, 10), np.int8), 0.1))
+    return adapter, core, logs
+
+
+def odom_msg(stamp: float, pose: list[float]):
+    return conversions.odometry_to_msg(stamp, np.array(pose, dtype=float), frame_id="odom")
+
+
+def scan_msg(stamp: float, ranges: list[float] | np.ndarray, *, increment: float = 0.1):
+    return conversions.scan_to_msg(
+        stamp,
+        "laser",
+        angle_min=-0.2,
+        angle_increment=increment,
+        ranges=np.asarray(ranges, dtype=float),
+        range_min=0.1,
+        range_max=10.0,
+    )
+
+
+def test_out_of_order_odometry_is_ignored_and_logged() -> None:
+    adapter, core, logs = make_adapter()
+    adapter.on_odom_msg(odom_msg(2.0, [1.0, 0.0, 0.0]))
+    adapter.on_odom_msg(odom_msg(1.0, [9.0, 9.0, 0.0]))  # older than the last one
+    adapter.on_odom_msg(odom_msg(3.0, [2.0, 0.0, 0.0]))
+    assert [stamp for stamp, _pose in core.odometry] == [2.0, 3.0]
+    assert "older than the last one" in logs.text()
+    adapter.on_odom_msg(odom_msg(4.0, [float("nan"), 0.0, 0.0]))
+    assert len(core.odometry) == 2
+    assert "non-finite" in logs.text()
+
+
+def test_nan_scan_is_rejected_without_raising() -> None:
+    adapter, core, logs = make_adapter()
+    assert adapter.on_scan_msg(scan_msg(1.0, [math.nan] * 5)) is None
+    assert core.scans == []
+    assert "no valid beam" in logs.text()
+    # A scan with some NaN readings still goes through; the readings stay classified as invalid.
+    output = adapter.on_scan_msg(scan_msg(2.0, [1.0, math.nan, -3.0, math.inf, 2.0]))
+    assert output is not None
+    scan = core.scans[-1]
+    assert scan.hit_mask.tolist() == [True, False, False, False, True]
+    assert scan.no_return_mask.tolist() == [False, False, False, True, False]
+
+
+@pytest.mark.parametrize(
+    ("msg", "log"),
+    [
+        (lambda: scan_msg(1.0, []), "no ranges"),
+        (lambda: scan_msg(1.0, [1.0, 2.0], increment=0.0), "angle_increment"),
+    ],
+)
+def test_unusable_scan_geometry_is_skipped(msg, log: str) -> None:
+    adapter, core, logs = make_adapter()
+    assert adapter.on_scan_msg(msg()) is None
+    assert core.scans == []
+    assert log in logs.text()
+
+
+def test_old_scans_and_scans_before_the_map_are_skipped() -> None:
+    adapter, core, logs = make_adapter()
+    assert adapter.on_scan_msg(scan_msg(5.0, [1.0] * 5)) is not None
+    assert adapter.on_scan_msg(scan_msg(4.0, [1.0] * 5)) is None
+    assert len(core.scans) == 1
+    no_map = LocalizerAdapter(EchoLocalizer(), node_name="echo", log=logs)
+    assert no_map.on_scan_msg(scan_msg(1.0, [1.0] * 5)) is None
+    assert "before any map" in logs.text()
+
+
+def test_core_errors_skip_the_update_without_raising() -> None:
+    adapter, core, logs = make_adapter()
+    core.fail_next = True
+    assert adapter.on_scan_msg(scan_msg(1.0, [1.0] * 5)) is None
+    assert "precomputation not ready" in logs.text()
+
+
+def test_mount_offset_round_trip() -> None:
+    mount = LaserMount(0.2, 0.1, 0.3)
+    adapter, core, _logs = make_adapter(mount)
+    base = np.array([1.0, 2.0, np.pi / 2])
+    adapter.on_odom_msg(odom_msg(1.0, base.tolist()))
+    # The core sees the laser: 0.2 m ahead and 0.1 m to the left of a base facing +y.
+    laser = core.odometry[-1][1]
+    np.testing.assert_allclose(laser, [0.9, 2.2, np.pi / 2 + 0.3], atol=1e-9)
+
+    output = adapter.on_scan_msg(scan_msg(1.5, [1.0] * 5))
+    assert output is not None
+    # The echoed laser pose comes back as the base pose, in the message too.
+    np.testing.assert_allclose(output.estimate.pose[:2], base[:2], atol=1e-9)
+    assert abs(angle_difference(output.estimate.pose[2], base[2])) < 1e-9
+    msg_pose = conversions.pose_from_pose_msg(output.pose.pose.pose)
+    np.testing.assert_allclose(msg_pose[:2], base[:2], atol=1e-6)
+    assert output.pose.header.frame_id == "map"
+    assert conversions.stamp_to_seconds(output.pose.header.stamp) == pytest.approx(1.5)
+    # Candidates are converted too: the second is a laser pose 0.5 m ahead of the first, returned as the base
+    # pose that puts the laser there.
+    assert len(output.candidates.poses) == 2
+    second = conversions.pose_from_pose_msg(output.candidates.poses[1])
+    expected = compose(compose(laser, [0.5, 0.0, 0.0]), inverse(mount.pose))
+    np.testing.assert_allclose(second[:2], expected[:2], atol=1e-6)
+
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, base, np.eye(3)))
+    np.testing.assert_allclose(core.initial_poses[-1], laser, atol=1e-9)
+
+
+def test_diagnostics_carry_status_and_update_time() -> None:
+    adapter, _core, _logs = make_adapter()
+    output = adapter.on_scan_msg(scan_msg(1.0, [1.0] * 5))
+    assert output is not None and output.update_ms >= 0.0
+    status = output.diagnostics.status[0]
+    assert status.message == "LOCALIZED"
+    assert status.hardware_id == "echo"
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["candidates"] == "2"
+    assert values["hypotheses"] == "2"
+    assert float(values["update_ms"]) == pytest.approx(output.update_ms, abs=0.01)
+
+
+def test_map_message_reaches_the_core_and_a_bad_one_is_refused() -> None:
+    core, logs = EchoLocalizer(), Logs()
+    adapter = LocalizerAdapter(core, node_name="echo", log=logs)
+    grid = GridMap(np.zeros((4, 6), np.int8), 0.25, (1.0, 2.0))
+    assert adapter.on_map_msg(conversions.grid_map_to_msg(grid, 0.0))
+    assert core.grid_map is not None and core.grid_map.width == 6
+    bad = conversions.grid_map_to_msg(grid, 0.0)
+    bad.info.width = 7  # no longer matches the data
+    assert not adapter.on_map_msg(bad)
+    assert "ignoring map message" in logs.text()
