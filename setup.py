@@ -1,20 +1,14 @@
 """robot_localization_suite: five published localization methods and a simulator, side by side."""
 
-from glob import glob
+import os
 
 from setuptools import find_packages, setup
 
 package_name = "robot_localization_suite"
 
 
-def tree(pattern: str) -> list[str]:
-    return sorted(path for path in glob(pattern, recursive=True) if not path.endswith("/"))
-
-
 def data_dirs(root: str) -> list[tuple[str, list[str]]]:
     """One data_files entry per folder under ``root``, so the share/ tree mirrors the source."""
-    import os
-
     entries = []
     for folder, _dirs, files in os.walk(root):
         if files:
