@@ -1,13 +1,19 @@
 # The two commands of the README: `make demo` and `make test`. Each creates .venv/
-# on first use and installs the package with its dependencies into it.
+# on first use (only Python >= 3.10 with pip is needed), installs the package with its
+# dependencies and the ROS 2 Jazzy wheels into it, then runs.
+#   make demo DEMO_ARGS="--speed 2"       options of rls_demo (see .venv/bin/rls_demo --help)
+#   make test PYTEST_ARGS="-k raycast"    options of pytest
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
+DEMO_ARGS ?=
+PYTEST_ARGS ?=
 
 .PHONY: setup demo test bench lint clean
 
-$(STAMP): setup.py package.xml setup.cfg
+# Reinstalled whenever the package metadata changes.
+$(STAMP): setup.py setup.cfg package.xml pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[ros,test]"
@@ -16,10 +22,10 @@ $(STAMP): setup.py package.xml setup.cfg
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m robot_localization_suite.launch.demo
+	$(PY) -m robot_localization_suite.launch.demo $(DEMO_ARGS)
 
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q test $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(PY) -m robot_localization_suite.tools.bench --all --out results
