@@ -1,0 +1,354 @@
+"""Benchmark metrics: localizer outputs against ground truth, as plain arrays.
+
+The definitions (also in README ``## Benchmark``):
+
+* An output is *correct* when ``|dxy| <= 0.5 m`` and ``|dtheta| <= 25 deg``,
+  *fine* when ``|dxy| <= 0.2 m`` and ``|dtheta| <= 0.1 rad``, against the
+  ground truth interpolated at the output's stamp (x, y and the unwrapped
+  heading linearly; never across a kidnapping, where the pose before the jump
+  holds until the jump's stamp). Outputs outside the ground truth's time span
+  (by more than one ground-truth period) have no truth and are left out.
+* A *fix* is an output that is correct and stays correct for the next
+  ``FIX_FOLLOWERS`` (3) outputs.
+* ``time_to_first_fix_s``: from the first input (scan or image) to the first fix.
+* A *kidnapping* is a ground-truth step of more than ``KIDNAP_JUMP_M`` (1 m)
+  that odometry does not show: the translation of the ground-truth step, seen
+  from its start pose, differs from the odometry step over the same interval
+  (interpolated at the same stamps) by more than 1 m. A bag without odometry
+  counts every ground-truth step over 1 m.
+* ``kidnap_recovery_s``: per kidnapping, from the jump (the stamp of the first
+  ground truth after it) to the first fix starting after it and before the
+  next kidnapping; null if none.
+* ``correct_rate`` / ``fine_rate``: over outputs from the first fix on.
+* ``rmse_xy_m`` / ``rmse_theta_rad``: over the same outputs, leaving out
+  ``KIDNAP_EXCLUSION_S`` (5 s) after each kidnapping.
+
+Everything here is numpy only; nothing knows about bags or ROS.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .se2 import angle_difference, relative, wrap_angle
+
+__all__ = [
+    "CORRECT_XY_M",
+    "CORRECT_THETA_RAD",
+    "FINE_XY_M",
+    "FINE_THETA_RAD",
+    "FIX_FOLLOWERS",
+    "KIDNAP_JUMP_M",
+    "KIDNAP_EXCLUSION_S",
+    "RECALL_KS",
+    "Trajectory",
+    "interpolate_poses",
+    "detect_kidnappings",
+    "pose_errors",
+    "correct_mask",
+    "fine_mask",
+    "first_fix_index",
+    "evaluate_outputs",
+    "timing_fields",
+    "boxes_contain",
+    "nearest_node_is_place",
+    "recall_at_k",
+    "evaluate_global_fixes",
+]
+
+CORRECT_XY_M = 0.5
+CORRECT_THETA_RAD = float(np.deg2rad(25.0))
+FINE_XY_M = 0.2
+FINE_THETA_RAD = 0.1
+FIX_FOLLOWERS = 3
+KIDNAP_JUMP_M = 1.0
+KIDNAP_EXCLUSION_S = 5.0
+RECALL_KS = (1, 5, 10, 30, 50, 100)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Time-stamped poses: ``stamps`` ``(N,)`` [s] increasing, ``poses`` ``(N, 3)`` [m, m, rad]."""
+
+    stamps: NDArray[np.float64]
+    poses: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        stamps = np.asarray(self.stamps, dtype=np.float64).reshape(-1)
+        poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 3)
+        if stamps.shape[0] != poses.shape[0]:
+            raise ValueError(f"trajectory has {stamps.shape[0]} stamps but {poses.shape[0]} poses")
+        order = np.argsort(stamps, kind="stable")
+        object.__setattr__(self, "stamps", stamps[order])
+        object.__setattr__(self, "poses", poses[order])
+
+    def __len__(self) -> int:
+        return int(self.stamps.shape[0])
+
+    @property
+    def period(self) -> float:
+        """Median time between poses [s] (0 with fewer than two poses)."""
+        return float(np.median(np.diff(self.stamps))) if len(self) > 1 else 0.0
+
+
+def interpolate_poses(
+    trajectory: Trajectory,
+    query: ArrayLike,
+    *,
+    breaks: ArrayLike = (),
+    tolerance: float | None = None,
+) -> NDArray[np.float64]:
+    """Poses ``(Q, 3)`` of ``trajectory`` at stamps ``query`` [s]; NaN rows where it has none.
+
+    x, y and the unwrapped heading are interpolated linearly. ``breaks`` are indices
+    ``i`` where the step from pose ``i - 1`` to ``i`` is a jump: between those two the
+    earlier pose holds. Queries up to ``tolerance`` (default: one period) outside the
+    trajectory's span take its first or last pose.
+    """
+    query = np.atleast_1d(np.asarray(query, dtype=np.float64))
+    out = np.full((query.shape[0], 3), np.nan)
+    count = len(trajectory)
+    if count == 0:
+        return out
+    stamps = trajectory.stamps
+    tolerance = trajectory.period if tolerance is None else float(tolerance)
+    theta = np.unwrap(trajectory.poses[:, 2])
+    left = np.searchsorted(stamps, query, side="right") - 1
+    inside = (left >= 0) & (left < count - 1)
+    before = (left < 0) & (query >= stamps[0] - tolerance)
+    after = (left >= count - 1) & (query <= stamps[-1] + tolerance)
+    out[before] = trajectory.poses[0]
+    out[after] = trajectory.poses[-1]
+    if np.any(inside):
+        i = left[inside]
+        t0, t1 = stamps[i], stamps[i + 1]
+        span = np.where(t1 > t0, t1 - t0, 1.0)
+        w = np.clip((query[inside] - t0) / span, 0.0, 1.0)
+        jump = np.isin(i + 1, np.asarray(breaks, dtype=np.int64))
+        w = np.where(jump, 0.0, w)
+        p0, p1 = trajectory.poses[i], trajectory.poses[i + 1]
+        out[inside, 0] = p0[:, 0] + w * (p1[:, 0] - p0[:, 0])
+        out[inside, 1] = p0[:, 1] + w * (p1[:, 1] - p0[:, 1])
+        out[inside, 2] = wrap_angle(theta[i] + w * (theta[i + 1] - theta[i]))
+    return out
+
+
+def detect_kidnappings(
+    ground_truth: Trajectory,
+    odometry: Trajectory | None = None,
+    *,
+    jump_m: float = KIDNAP_JUMP_M,
+) -> NDArray[np.int64]:
+    """Indices ``i`` of ground-truth steps ``i - 1 -> i`` that are kidnappings (see the module docstring)."""
+    if len(ground_truth) < 2:
+        return np.zeros(0, dtype=np.int64)
+    previous, current = ground_truth.poses[:-1], ground_truth.poses[1:]
+    step = np.hypot(current[:, 0] - previous[:, 0], current[:, 1] - previous[:, 1])
+    candidates = np.nonzero(step > jump_m)[0] + 1
+    if odometry is None or len(odometry) < 2 or candidates.size == 0:
+        return candidates.astype(np.int64)
+    odom_before = interpolate_poses(odometry, ground_truth.stamps[candidates - 1], tolerance=np.inf)
+    odom_after = interpolate_poses(odometry, ground_truth.stamps[candidates], tolerance=np.inf)
+    truth_step = relative(ground_truth.poses[candidates - 1], ground_truth.poses[candidates])
+    odom_step = relative(odom_before, odom_after)
+    unexplained = np.hypot(truth_step[:, 0] - odom_step[:, 0], truth_step[:, 1] - odom_step[:, 1])
+    return candidates[unexplained > jump_m].astype(np.int64)
+
+
+def pose_errors(estimates: ArrayLike, truth: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Position error [m] and absolute heading error [rad] of poses ``(N, 3)`` against ``(N, 3)``."""
+    estimates = np.asarray(estimates, dtype=np.float64).reshape(-1, 3)
+    truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    dxy = np.hypot(estimates[:, 0] - truth[:, 0], estimates[:, 1] - truth[:, 1])
+    dtheta = np.abs(np.asarray(angle_difference(estimates[:, 2], truth[:, 2]), dtype=np.float64))
+    return dxy, dtheta
+
+
+def correct_mask(dxy: NDArray[np.float64], dtheta: NDArray[np.float64]) -> NDArray[np.bool_]:
+    with np.errstate(invalid="ignore"):
+        return (dxy <= CORRECT_XY_M) & (dtheta <= CORRECT_THETA_RAD)
+
+
+def fine_mask(dxy: NDArray[np.float64], dtheta: NDArray[np.float64]) -> NDArray[np.bool_]:
+    with np.errstate(invalid="ignore"):
+        return (dxy <= FINE_XY_M) & (dtheta <= FINE_THETA_RAD)
+
+
+def first_fix_index(
+    stamps: NDArray[np.float64],
+    correct: NDArray[np.bool_],
+    *,
+    start: float = -np.inf,
+    stop: float = np.inf,
+    followers: int = FIX_FOLLOWERS,
+) -> int | None:
+    """Index of the first output stamped in ``[start, stop)`` that is correct along with the next ``followers``."""
+    correct = np.asarray(correct, dtype=bool)
+    window = followers + 1
+    if correct.size < window:
+        return None
+    # runs[j] is True when correct[j : j + window] are all True.
+    runs = np.convolve(correct.astype(np.int64), np.ones(window, dtype=np.int64), mode="valid") == window
+    eligible = runs & (stamps[: runs.size] >= start) & (stamps[: runs.size] < stop)
+    found = np.nonzero(eligible)[0]
+    return int(found[0]) if found.size else None
+
+
+def _rounded(value: float | None, digits: int = 4) -> float | None:
+    if value is None or not np.isfinite(value):
+        return None
+    return round(float(value), digits)
+
+
+def timing_fields(update_ms: ArrayLike) -> dict[str, float | None]:
+    """``update_ms_median`` and ``update_ms_p95`` of update times [ms] (None without updates)."""
+    update_ms = np.asarray(update_ms, dtype=np.float64)
+    if update_ms.size == 0:
+        return {"update_ms_median": None, "update_ms_p95": None}
+    return {
+        "update_ms_median": _rounded(np.median(update_ms), 3),
+        "update_ms_p95": _rounded(np.percentile(update_ms, 95), 3),
+    }
+
+
+def evaluate_outputs(
+    output_stamps: ArrayLike,
+    output_poses: ArrayLike,
+    ground_truth: Trajectory,
+    *,
+    first_input_stamp: float | None,
+    kidnap_indices: ArrayLike = (),
+) -> dict[str, Any]:
+    """The accuracy fields of ``summary.json`` for one run (see the module docstring).
+
+    Returns ``correct``, ``fine`` (per-output booleans, for plots), ``position_error_m``,
+    ``heading_error_rad`` (NaN without truth), and the scalar fields
+    ``time_to_first_fix_s``, ``kidnap_recovery_s``, ``correct_rate``, ``fine_rate``,
+    ``rmse_xy_m``, ``rmse_theta_rad``; nulls where a value does not exist.
+    """
+    stamps = np.asarray(output_stamps, dtype=np.float64).reshape(-1)
+    poses = np.asarray(output_poses, dtype=np.float64).reshape(-1, 3)
+    kidnaps = np.asarray(kidnap_indices, dtype=np.int64).reshape(-1)
+    kidnap_stamps = ground_truth.stamps[kidnaps] if kidnaps.size else np.zeros(0)
+    truth = interpolate_poses(ground_truth, stamps, breaks=kidnaps)
+    dxy, dtheta = pose_errors(poses, truth)
+    has_truth = np.isfinite(dxy)
+    correct = correct_mask(dxy, dtheta) & has_truth
+    fine = fine_mask(dxy, dtheta) & has_truth
+
+    fix = first_fix_index(stamps, correct)
+    time_to_first_fix = None
+    if fix is not None and first_input_stamp is not None:
+        time_to_first_fix = _rounded(stamps[fix] - first_input_stamp)
+
+    recoveries: list[float | None] = []
+    for k, jump_stamp in enumerate(kidnap_stamps):
+        next_jump = kidnap_stamps[k + 1] if k + 1 < kidnap_stamps.size else np.inf
+        index = first_fix_index(stamps, correct, start=jump_stamp, stop=next_jump)
+        recoveries.append(None if index is None else _rounded(stamps[index] - jump_stamp))
+
+    fields: dict[str, Any] = {
+        "time_to_first_fix_s": time_to_first_fix,
+        "kidnap_recovery_s": recoveries,
+        "correct_rate": None,
+        "fine_rate": None,
+        "rmse_xy_m": None,
+        "rmse_theta_rad": None,
+    }
+    if fix is not None:
+        after_fix = (np.arange(stamps.size) >= fix) & has_truth
+        fields["correct_rate"] = _rounded(np.mean(correct[after_fix]))
+        fields["fine_rate"] = _rounded(np.mean(fine[after_fix]))
+        settled = after_fix.copy()
+        for jump_stamp in kidnap_stamps:
+            settled &= ~((stamps >= jump_stamp) & (stamps < jump_stamp + KIDNAP_EXCLUSION_S))
+        if settled.any():
+            fields["rmse_xy_m"] = _rounded(np.sqrt(np.mean(dxy[settled] ** 2)))
+            fields["rmse_theta_rad"] = _rounded(np.sqrt(np.mean(dtheta[settled] ** 2)))
+    fields.update(
+        correct=correct,
+        fine=fine,
+        position_error_m=dxy,
+        heading_error_rad=dtheta,
+    )
+    return fields
+
+
+def boxes_contain(boxes: ArrayLike, pose: ArrayLike) -> bool:
+    """Whether any box ``(K, 3, 2)`` (``[lo, hi]`` of x, y, theta) contains ``pose`` ``(3,)``.
+
+    Heading intervals may extend beyond ``[-pi, pi]``; containment is checked modulo 2 pi.
+    """
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 3, 2)
+    pose = np.asarray(pose, dtype=np.float64)
+    if boxes.shape[0] == 0 or not np.all(np.isfinite(pose)):
+        return False
+    inside_xy = (
+        (boxes[:, 0, 0] <= pose[0]) & (pose[0] <= boxes[:, 0, 1]) & (boxes[:, 1, 0] <= pose[1]) & (pose[1] <= boxes[:, 1, 1])
+    )
+    width = boxes[:, 2, 1] - boxes[:, 2, 0]
+    offset = np.mod(pose[2] - boxes[:, 2, 0], 2.0 * np.pi)
+    inside_theta = (width >= 2.0 * np.pi) | ((width >= 0.0) & (offset <= width))
+    return bool(np.any(inside_xy & inside_theta))
+
+
+def nearest_node_is_place(place_xy: ArrayLike, node_xy: ArrayLike, true_xy: ArrayLike, tolerance: float = 1e-6) -> bool:
+    """Whether ``place_xy`` ``(2,)`` is the node of ``node_xy`` ``(N, 2)`` nearest to ``true_xy``."""
+    nodes = np.asarray(node_xy, dtype=np.float64).reshape(-1, 2)
+    place = np.asarray(place_xy, dtype=np.float64).reshape(2)
+    truth = np.asarray(true_xy, dtype=np.float64).reshape(-1)[:2]
+    if nodes.shape[0] == 0 or not np.all(np.isfinite(truth)):
+        return False
+    nearest = nodes[np.argmin(np.hypot(nodes[:, 0] - truth[0], nodes[:, 1] - truth[1]))]
+    return bool(np.hypot(*(nearest - place)) <= tolerance)
+
+
+def recall_at_k(candidates: ArrayLike, truth: ArrayLike, ks: Sequence[int] = RECALL_KS) -> dict[int, bool]:
+    """For each k: is a correct candidate (0.5 m, 25 deg) among the first k of ``candidates`` ``(K, 3)``?"""
+    candidates = np.asarray(candidates, dtype=np.float64).reshape(-1, 3)
+    if candidates.shape[0] == 0:
+        return {k: False for k in ks}
+    dxy, dtheta = pose_errors(candidates, np.broadcast_to(np.asarray(truth, dtype=np.float64), candidates.shape))
+    correct = correct_mask(dxy, dtheta)
+    first = int(np.argmax(correct)) if correct.any() else None
+    return {k: first is not None and first < k for k in ks}
+
+
+def evaluate_global_fixes(
+    estimates: ArrayLike,
+    truths: ArrayLike,
+    fix_ms: ArrayLike,
+    recalls: Sequence[dict[int, bool]],
+    ks: Sequence[int] = RECALL_KS,
+) -> dict[str, Any]:
+    """Fields of ``--global-fixes``: success rates of single-scan fixes, their time, recall@k.
+
+    ``estimates`` ``(F, 3)`` (NaN rows for failed fixes), ``truths`` ``(F, 3)``, ``fix_ms`` ``(F,)``,
+    ``recalls`` one :func:`recall_at_k` result per fix. Fixes without truth are left out.
+    """
+    estimates = np.asarray(estimates, dtype=np.float64).reshape(-1, 3)
+    truths = np.asarray(truths, dtype=np.float64).reshape(-1, 3)
+    fix_ms = np.asarray(fix_ms, dtype=np.float64).reshape(-1)
+    with_truth = np.all(np.isfinite(truths), axis=1)
+    dxy, dtheta = pose_errors(estimates, truths)
+    fields: dict[str, Any] = {"fixes": int(fix_ms.size), "fixes_with_truth": int(with_truth.sum())}
+    if with_truth.any():
+        fields["global_correct_rate"] = _rounded(np.mean(correct_mask(dxy, dtheta)[with_truth]))
+        fields["global_fine_rate"] = _rounded(np.mean(fine_mask(dxy, dtheta)[with_truth]))
+        kept = [r for r, keep in zip(recalls, with_truth, strict=True) if keep]
+        fields["recall_at_k"] = {str(k): _rounded(np.mean([r[k] for r in kept])) for k in ks}
+    else:
+        fields["global_correct_rate"] = None
+        fields["global_fine_rate"] = None
+        fields["recall_at_k"] = {str(k): None for k in ks}
+    if fix_ms.size:
+        fields["fix_ms_median"] = _rounded(np.median(fix_ms), 3)
+        fields["fix_ms_p95"] = _rounded(np.percentile(fix_ms, 95), 3)
+    else:
+        fields["fix_ms_median"] = fields["fix_ms_p95"] = None
+    return fields

@@ -1,0 +1,169 @@
+"""Benchmark metrics against hand-made trajectories (core/metrics.py, no ROS)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from robot_localization_suite.core import metrics
+
+SCAN_PERIOD = 0.1  # [s] of every hand-made trajectory below
+
+
+def straight_line(duration: float = 20.0, speed: float = 0.5, period: float = SCAN_PERIOD) -> metrics.Trajectory:
+    """A robot driving along +x at ``speed`` m/s, one pose every ``period`` s."""
+    stamps = np.arange(0.0, duration + 1e-9, period)
+    poses = np.stack([speed * stamps, np.zeros_like(stamps), np.zeros_like(stamps)], axis=1)
+    return metrics.Trajectory(stamps, poses)
+
+
+def kidnapped_line(jump_at: float = 10.0, jump_y: float = 3.0):
+    """Ground truth that jumps 3 m sideways at ``jump_at`` while odometry keeps driving straight."""
+    odometry = straight_line()
+    truth_poses = odometry.poses.copy()
+    truth_poses[odometry.stamps >= jump_at - 1e-9, 1] += jump_y
+    return metrics.Trajectory(odometry.stamps, truth_poses), odometry
+
+
+def test_constant_offset_is_correct_but_never_fine():
+    truth = straight_line()
+    outputs = truth.poses + np.array([0.3, 0.0, 0.0])  # 0.3 m: inside 0.5 m, outside 0.2 m
+    fields = metrics.evaluate_outputs(truth.stamps, outputs, truth, first_input_stamp=0.0)
+    assert fields["correct_rate"] == 1.0
+    assert fields["fine_rate"] == 0.0
+    assert fields["rmse_xy_m"] == pytest.approx(0.3, abs=1e-6)
+    assert fields["rmse_theta_rad"] == pytest.approx(0.0, abs=1e-9)
+    assert fields["time_to_first_fix_s"] == 0.0
+    assert fields["kidnap_recovery_s"] == []
+
+
+def test_heading_error_alone_decides_correct_and_fine():
+    truth = straight_line(duration=2.0)
+    # 0.15 rad: fine fails (> 0.1 rad), correct holds (< 25 deg = 0.436 rad).
+    fields = metrics.evaluate_outputs(truth.stamps, truth.poses + [0.0, 0.0, 0.15], truth, first_input_stamp=0.0)
+    assert (fields["correct_rate"], fields["fine_rate"]) == (1.0, 0.0)
+    # 30 degrees: not correct anywhere, so no fix at all.
+    fields = metrics.evaluate_outputs(truth.stamps, truth.poses + [0.0, 0.0, np.deg2rad(30)], truth,
+                                      first_input_stamp=0.0)
+    assert fields["time_to_first_fix_s"] is None
+    assert fields["correct_rate"] is None
+
+
+def test_kidnapping_detected_only_when_odometry_does_not_show_it():
+    truth, odometry = kidnapped_line()
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    assert kidnaps.tolist() == [100]  # the pose stamped 10.0 s is the first after the jump
+    # The same 3 m step shown by odometry is a fast drive, not a kidnapping.
+    assert metrics.detect_kidnappings(truth, truth).size == 0
+    # Without odometry every ground-truth step over 1 m counts.
+    assert metrics.detect_kidnappings(truth, None).tolist() == [100]
+    # A 0.9 m teleport stays under the 1 m threshold.
+    small, odometry = kidnapped_line(jump_y=0.9)
+    assert metrics.detect_kidnappings(small, odometry).size == 0
+
+
+def test_kidnapping_recovered_after_two_seconds():
+    truth, odometry = kidnapped_line(jump_at=10.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    # The localizer keeps following odometry (the old place) for 2 s, then snaps to the truth.
+    outputs = truth.poses.copy()
+    lost = (stamps >= 10.0 - 1e-9) & (stamps < 12.0 - 1e-9)
+    outputs[lost] = odometry.poses[lost]
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert len(fields["kidnap_recovery_s"]) == 1
+    assert fields["kidnap_recovery_s"][0] == pytest.approx(2.0, abs=SCAN_PERIOD)
+    assert fields["time_to_first_fix_s"] == 0.0
+    # 20 of 201 outputs are wrong; RMSE leaves out the 5 s after the jump, so it sees none of them.
+    assert fields["correct_rate"] == pytest.approx(181 / 201, abs=1e-4)
+    assert fields["rmse_xy_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_kidnapping_never_recovered_gives_null():
+    truth, odometry = kidnapped_line(jump_at=10.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    outputs = odometry.poses  # never notices
+    fields = metrics.evaluate_outputs(truth.stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert fields["kidnap_recovery_s"] == [None]
+    # The 5 s right after the jump are left out of the RMSE, the 5 s after that are 3 m off.
+    assert fields["rmse_xy_m"] == pytest.approx(3.0 * np.sqrt(51 / 151), abs=1e-3)
+
+
+def test_no_output_gives_nulls_not_a_crash():
+    truth, odometry = kidnapped_line()
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    fields = metrics.evaluate_outputs(np.zeros(0), np.zeros((0, 3)), truth, first_input_stamp=0.0,
+                                      kidnap_indices=kidnaps)
+    for key in ("time_to_first_fix_s", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
+        assert fields[key] is None
+    assert fields["kidnap_recovery_s"] == [None]
+    assert metrics.timing_fields([]) == {"update_ms_median": None, "update_ms_p95": None}
+
+
+def test_fix_needs_three_correct_followers():
+    truth = straight_line(duration=1.0)
+    outputs = truth.poses.copy()
+    outputs[[0, 2, 4], 0] += 2.0  # wrong at 0, 2 and 4: the first run of four correct starts at 5
+    fields = metrics.evaluate_outputs(truth.stamps, outputs, truth, first_input_stamp=0.0)
+    assert fields["time_to_first_fix_s"] == pytest.approx(0.5)
+    correct = metrics.correct_mask(*metrics.pose_errors(outputs, truth.poses))
+    assert metrics.first_fix_index(truth.stamps, correct) == 5
+    assert metrics.first_fix_index(truth.stamps[:3], np.ones(3, dtype=bool)) is None  # too few outputs
+
+
+def test_time_to_first_fix_counts_from_the_first_input():
+    truth = straight_line(duration=5.0)
+    outputs = truth.poses.copy()
+    outputs[truth.stamps < 2.0 - 1e-9, 0] += 5.0
+    fields = metrics.evaluate_outputs(truth.stamps, outputs, truth, first_input_stamp=-1.0)
+    assert fields["time_to_first_fix_s"] == pytest.approx(3.0)  # fix at 2.0 s, first scan at -1.0 s
+    assert fields["correct_rate"] == 1.0  # counted from the fix on
+
+
+def test_interpolation_uses_the_unwrapped_heading():
+    truth = metrics.Trajectory([0.0, 1.0], [[0.0, 0.0, np.pi - 0.1], [2.0, 4.0, -np.pi + 0.1]])
+    middle = metrics.interpolate_poses(truth, [0.5])[0]
+    assert middle[:2] == pytest.approx([1.0, 2.0])
+    # Half-way through a 0.2 rad turn across +-pi is pi, not 0.
+    assert abs(np.cos(middle[2]) + 1.0) < 1e-9
+    # Outside the span by more than a period: no truth.
+    assert np.isnan(metrics.interpolate_poses(truth, [3.0])).all()
+    assert metrics.interpolate_poses(truth, [1.5])[0] == pytest.approx([2.0, 4.0, -np.pi + 0.1])
+
+
+def test_interpolation_does_not_cross_a_kidnapping():
+    truth = metrics.Trajectory([0.0, 1.0], [[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    assert metrics.interpolate_poses(truth, [0.5], breaks=[1])[0][0] == 0.0  # the old pose holds until the jump
+    assert metrics.interpolate_poses(truth, [0.5])[0][0] == pytest.approx(5.0)
+
+
+def test_boxes_contain_checks_heading_modulo_two_pi():
+    boxes = np.array([[[0.0, 1.0], [0.0, 1.0], [3.0, 3.5]]])  # theta interval reaches past pi
+    assert metrics.boxes_contain(boxes, [0.5, 0.5, -3.0])  # -3.0 + 2 pi = 3.28 is inside
+    assert not metrics.boxes_contain(boxes, [0.5, 0.5, 0.0])
+    assert not metrics.boxes_contain(boxes, [1.5, 0.5, 3.2])
+    assert metrics.boxes_contain(np.array([[[0, 1], [0, 1], [-10.0, 10.0]]]), [0.5, 0.5, 2.0])
+    assert not metrics.boxes_contain(np.zeros((0, 3, 2)), [0.0, 0.0, 0.0])
+
+
+def test_place_is_the_node_nearest_the_truth():
+    nodes = np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0]])
+    assert metrics.nearest_node_is_place([5.0, 0.0], nodes, [6.0, 1.0])
+    assert not metrics.nearest_node_is_place([0.0, 0.0], nodes, [6.0, 1.0])
+
+
+def test_recall_at_k_finds_the_rank_of_the_first_correct_candidate():
+    truth = np.array([1.0, 1.0, 0.0])
+    candidates = np.vstack([np.tile([9.0, 9.0, 0.0], (7, 1)), [1.2, 1.0, 0.1]])  # correct one at rank 8
+    recall = metrics.recall_at_k(candidates, truth)
+    assert recall == {1: False, 5: False, 10: True, 30: True, 50: True, 100: True}
+    fields = metrics.evaluate_global_fixes([candidates[0], truth], [truth, truth], [2.0, 4.0],
+                                           [recall, metrics.recall_at_k(truth[None], truth)])
+    assert fields["global_correct_rate"] == 0.5
+    assert fields["recall_at_k"]["1"] == 0.5 and fields["recall_at_k"]["10"] == 1.0
+    assert fields["fix_ms_median"] == pytest.approx(3.0)
+
+
+def test_trajectory_rejects_mismatched_lengths():
+    with pytest.raises(ValueError, match="3 stamps but 2 poses"):
+        metrics.Trajectory([0.0, 1.0, 2.0], np.zeros((2, 3)))
