@@ -1,0 +1,565 @@
+"""Turn a corrected CARMEN log into a rosbag2 MCAP bag and an occupancy map.
+
+    carmen_to_bag LOG OUT_DIR [--map-out MAP_YAML] [--alpha1 A] ... [--seed S] [--resolution 0.05]
+
+Input: a (gzipped) corrected CARMEN log (Radish datasets). Only ``FLASER``
+lines are used; their format (CARMEN ``logtools``, old-style front laser) is
+
+    FLASER n r1 .. rn  x y theta  odom_x odom_y odom_theta  ipc_timestamp host logger_timestamp
+
+where ``x y theta`` is the corrected laser pose (the ground truth of these
+logs) and ``odom_*`` repeats it in corrected logs. Every other line (ODOM,
+PARAM, NEFF, RLASER, comments) is ignored.
+
+Choices, written down because the logs leave them open:
+
+* Beam geometry as CARMEN guesses it for a SICK LMS
+  (``carmen_laser_guess_angle_increment``): the first beam at -90 degrees,
+  1 degree apart for 180/181 beams, 0.5 degree for 360/361, otherwise
+  180 degrees spread over ``n - 1`` gaps.
+* No-returns: the scanner writes an error code at its maximum (81.83 m or
+  81.91 m in the Intel and FR101 logs, 32.759..32.767 m in the Orebro log).
+  The log's maximum range is the largest reading in the log; every reading at
+  or above ``max - no_return_tolerance`` (default 0.1 m) is a no-return,
+  published as ``+inf``, and ``range_max`` is that threshold (REP 117).
+  ``--max-range`` overrides the detection.
+* Time: the FLASER ``ipc_timestamp``. A stamp that does not increase is moved
+  1 ms after the previous one (the Intel log steps back five times by up to
+  0.9 s). A log without usable stamps (the Orebro log writes 0 everywhere)
+  gets one scan every ``--period`` seconds.
+* Odometry: the logs carry none that is usable, so ``/odom`` is the corrected
+  trajectory seen through Thrun's odometry model (*Probabilistic Robotics*
+  table 5.6, the shared ``OdometryMotionModel.sample``): each step between two
+  corrected poses is perturbed with alpha1..alpha4 and accumulated from
+  ``(0, 0, 0)`` in the ``odom`` frame. The defaults (alpha scales a variance,
+  as in nav2_amcl) give about 2 % of translation (``sqrt(4e-4)``) and
+  2 degrees per radian of rotation (``sqrt(1.2e-3)``), the figures DESIGN.md
+  measured nav2_amcl with on the Intel log. Seeded, so a conversion repeats.
+* Map: 5 cm log-odds occupancy grid (Thrun et al. table 9.1) built from the
+  scans at the corrected poses: every cell a beam crosses (integer Bresenham
+  from the laser cell to the endpoint cell, endpoint excluded) gets
+  ``log(0.4/0.6)``, the endpoint cell of a hit ``log(0.7/0.3)``; log-odds are
+  clamped to [-2, 3.5] so that people who walked by are erased. A cell is
+  occupied if its log-odds are positive, free if negative, unknown if never
+  seen (or exactly balanced). Hits beyond ``--map-max-range`` (default 40 m)
+  and no-returns do not add endpoints; a far hit still clears free space up to
+  ``--map-max-range`` while no-returns clear nothing (they include glass and
+  dazzle as well as open space).
+
+Output topics: ``/map`` (nav_msgs/OccupancyGrid, once, before everything),
+then per scan ``/odom`` (nav_msgs/Odometry, frame ``odom``, child
+``base_link``), ``/ground_truth`` (nav_msgs/Odometry in ``map``) and ``/scan``
+(sensor_msgs/LaserScan, frame ``laser``), all with the scan's stamp. The laser
+sits at the robot's origin (the logs' laser offset is 0), so the ground truth
+is the corrected laser pose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import math
+import os
+import shutil
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from ..core.errors import LocalizationSuiteError
+from ..core.grid_map import GridMap
+from ..core.motion import OdometryMotionModel, odometry_delta
+
+__all__ = [
+    "CarmenLogError",
+    "CarmenScan",
+    "CarmenLog",
+    "ConversionSettings",
+    "ConversionReport",
+    "parse_carmen_log",
+    "beam_geometry",
+    "detect_max_range",
+    "assign_stamps",
+    "simulate_odometry",
+    "build_occupancy_map",
+    "convert_log",
+    "main",
+]
+
+# Log-odds of one observation (Thrun et al., Probabilistic Robotics, table 9.1 / 9.2):
+# p(occ | hit) = 0.7, p(occ | beam passed) = 0.4, and the clamp of long-lived maps.
+LOG_ODDS_HIT = math.log(0.7 / 0.3)
+LOG_ODDS_MISS = math.log(0.4 / 0.6)
+LOG_ODDS_MIN, LOG_ODDS_MAX = -2.0, 3.5
+
+DEFAULT_ALPHAS = (1.2e-3, 1e-4, 4e-4, 1e-4)  # alpha1..alpha4, see the module docstring
+
+# Fields after the ranges: x y theta odom_x odom_y odom_theta ipc_timestamp (host and logger_timestamp optional).
+_REQUIRED_TAIL = 7
+
+
+class CarmenLogError(LocalizationSuiteError):
+    """A CARMEN log cannot be converted (missing, unreadable, or without FLASER lines)."""
+
+
+@dataclass(frozen=True)
+class CarmenScan:
+    """One FLASER line: raw ranges [m], corrected laser pose, the log's timestamp [s]."""
+
+    line_number: int
+    ranges: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    timestamp: float
+
+
+@dataclass
+class CarmenLog:
+    """The FLASER scans of a log and the lines that were skipped (line number, reason)."""
+
+    scans: list[CarmenScan]
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+
+
+def _open_text(path: Path):
+    with open(path, "rb") as probe:
+        magic = probe.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """Ranges, pose and timestamp of the tokens of one FLASER line; ``ValueError`` saying what is wrong."""
+    if len(tokens) < 2:
+        raise ValueError("no beam count")
+    try:
+        count = int(tokens[1])
+    except ValueError:
+        raise ValueError(f"beam count {tokens[1]!r} is not an integer") from None
+    if not 1 <= count <= 100_000:
+        raise ValueError(f"beam count {count} out of range")
+    needed = 2 + count + _REQUIRED_TAIL
+    if len(tokens) < needed:
+        raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
+    try:
+        values = np.array(tokens[2:needed], dtype=np.float64)
+    except ValueError:
+        bad = next(t for t in tokens[2:needed] if not _is_number(t))
+        raise ValueError(f"field {bad!r} is not a number") from None
+    ranges = values[:count]
+    pose = values[count : count + 3]
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    timestamp = float(values[count + 6])
+    return ranges, pose, timestamp
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _report_to_stderr(line_number: int, reason: str) -> None:
+    print(f"carmen_to_bag: line {line_number}: {reason}; skipped", file=sys.stderr)
+
+
+def parse_carmen_log(
+    path: str | os.PathLike[str],
+    *,
+    on_skip: Callable[[int, str], None] | None = _report_to_stderr,
+) -> CarmenLog:
+    """Read the FLASER lines of a CARMEN log (plain or gzip).
+
+    A malformed or truncated FLASER line is reported through ``on_skip(line_number, reason)``
+    (1-based line numbers) and skipped.
+
+    Raises:
+        CarmenLogError: the file is missing or unreadable, or holds no usable FLASER line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CarmenLogError(f"CARMEN log {str(path)!r} does not exist")
+    log = CarmenLog(scans=[])
+    try:
+        with _open_text(path) as stream:
+            for line_number, line in enumerate(stream, start=1):
+                if not line.startswith("FLASER"):
+                    continue
+                tokens = line.split()
+                if tokens[0] != "FLASER":
+                    continue
+                try:
+                    ranges, pose, timestamp = _parse_flaser(tokens)
+                except ValueError as exc:
+                    log.skipped.append((line_number, str(exc)))
+                    if on_skip is not None:
+                        on_skip(line_number, f"malformed FLASER line ({exc})")
+                    continue
+                log.scans.append(CarmenScan(line_number, ranges, pose, timestamp))
+    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        raise CarmenLogError(f"CARMEN log {str(path)!r} cannot be read: {exc}") from exc
+    if not log.scans:
+        detail = f" ({len(log.skipped)} malformed)" if log.skipped else ""
+        raise CarmenLogError(f"CARMEN log {str(path)!r} holds no usable FLASER line{detail}")
+    return log
+
+
+def beam_geometry(count: int) -> tuple[float, float]:
+    """``(angle_min, angle_increment)`` [rad] of a CARMEN front laser with ``count`` beams."""
+    if count in (180, 181):
+        increment = math.pi / 180.0
+    elif count in (360, 361):
+        increment = math.pi / 360.0
+    elif count > 1:
+        increment = math.pi / (count - 1)
+    else:
+        increment = math.pi
+    return -math.pi / 2.0, increment
+
+
+def detect_max_range(scans: Iterable[CarmenScan], tolerance: float) -> float:
+    """The no-return threshold [m]: the log's largest reading minus ``tolerance``."""
+    largest = max(float(np.nanmax(s.ranges)) if s.ranges.size else -np.inf for s in scans)
+    if not np.isfinite(largest) or largest - tolerance <= 0.0:
+        raise CarmenLogError(f"cannot find the maximum range of the log (largest reading {largest!r})")
+    return largest - tolerance
+
+
+def assign_stamps(raw: NDArray[np.float64], period: float, min_step: float = 1e-3) -> NDArray[np.float64]:
+    """Increasing stamps [s] from the log's timestamps (see the module docstring)."""
+    raw = np.asarray(raw, dtype=np.float64)
+    if raw.size == 0:
+        return raw
+    usable = np.all(np.isfinite(raw)) and (raw.size == 1 or np.count_nonzero(np.diff(raw) > 0) >= (raw.size - 1) / 2)
+    if not usable or raw.max() <= 0.0:
+        return period * np.arange(1, raw.size + 1, dtype=np.float64)
+    stamps = raw.copy()
+    for i in range(1, stamps.size):
+        if stamps[i] <= stamps[i - 1]:
+            stamps[i] = stamps[i - 1] + min_step
+    return stamps
+
+
+def simulate_odometry(
+    poses: NDArray[np.float64], model: OdometryMotionModel, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """Odometry poses ``(N, 3)`` starting at the origin: each true step perturbed by ``model``."""
+    poses = np.asarray(poses, dtype=np.float64)
+    odom = np.zeros_like(poses)
+    for i in range(1, poses.shape[0]):
+        odom[i] = model.sample(odom[i - 1 : i], poses[i - 1], poses[i], rng)[0]
+    return odom
+
+
+@numba.njit(cache=True, nogil=True)
+def _integrate_beams(log_odds, seen, x0, y0, x1, y1, endpoint_hit, miss, hit, lo, hi):  # pragma: no cover - compiled
+    """Bresenham from cell (x0, y0) to (x1, y1), endpoint excluded: ``miss``; endpoint: ``hit`` or ``miss``."""
+    height, width = log_odds.shape
+    for k in range(x0.shape[0]):
+        cx, cy, ex, ey = x0[k], y0[k], x1[k], y1[k]
+        dx = abs(ex - cx)
+        dy = -abs(ey - cy)
+        sx = 1 if cx < ex else -1
+        sy = 1 if cy < ey else -1
+        err = dx + dy
+        while cx != ex or cy != ey:
+            if 0 <= cx < width and 0 <= cy < height:
+                value = log_odds[cy, cx] + miss
+                log_odds[cy, cx] = lo if value < lo else value
+                seen[cy, cx] = True
+            e2 = 2 * err
+            if e2 >= dy:
+                err += dy
+                cx += sx
+            if e2 <= dx:
+                err += dx
+                cy += sy
+        if 0 <= ex < width and 0 <= ey < height:
+            value = log_odds[ey, ex] + (hit if endpoint_hit[k] else miss)
+            log_odds[ey, ex] = hi if value > hi else (lo if value < lo else value)
+            seen[ey, ex] = True
+
+
+def build_occupancy_map(
+    poses: NDArray[np.float64],
+    angle_sets: list[NDArray[np.float64]],
+    range_sets: list[NDArray[np.float64]],
+    max_range: float,
+    *,
+    resolution: float = 0.05,
+    map_max_range: float = 40.0,
+    margin: float = 1.0,
+) -> GridMap:
+    """Log-odds occupancy grid from scans at known laser poses (see the module docstring).
+
+    Args:
+        poses: ``(S, 3)`` laser poses in the map [m, m, rad].
+        angle_sets, range_sets: per scan, beam angles [rad] and raw ranges [m].
+        max_range: readings at or above it are no-returns [m].
+        resolution: cell size [m].
+        map_max_range: hits farther than this add no endpoint; free space is traced up to it [m].
+        margin: free border around everything observed [m].
+    """
+    if resolution <= 0.0 or not np.isfinite(resolution):
+        raise ValueError(f"map resolution must be positive, got {resolution!r}")
+    starts, ends, hits = [], [], []
+    for pose, angles, ranges in zip(poses, angle_sets, range_sets, strict=True):
+        valid = np.isfinite(ranges) & (ranges > 0.0) & (ranges < max_range)
+        is_hit = valid & (ranges <= map_max_range)
+        length = np.where(is_hit, ranges, map_max_range)[valid]
+        heading = pose[2] + angles[valid]
+        end = np.stack([pose[0] + length * np.cos(heading), pose[1] + length * np.sin(heading)], axis=-1)
+        starts.append(np.broadcast_to(pose[:2], end.shape))
+        ends.append(end)
+        hits.append(is_hit[valid])
+    start_xy = np.concatenate(starts) if starts else np.zeros((0, 2))
+    end_xy = np.concatenate(ends) if ends else np.zeros((0, 2))
+    endpoint_hit = np.concatenate(hits) if hits else np.zeros(0, dtype=bool)
+
+    # The map spans the trajectory and every hit; far free-space traces are clipped to it.
+    extent_points = np.vstack([poses[:, :2], end_xy[endpoint_hit]])
+    low = np.floor((extent_points.min(axis=0) - margin) / resolution) * resolution
+    high = np.ceil((extent_points.max(axis=0) + margin) / resolution) * resolution
+    width, height = (np.round((high - low) / resolution).astype(np.int64) + 1).tolist()
+
+    def to_cells(xy: NDArray[np.float64]) -> NDArray[np.int64]:
+        return np.floor((xy - low) / resolution).astype(np.int64)
+
+    start_cells, end_cells = to_cells(start_xy), to_cells(end_xy)
+    log_odds = np.zeros((height, width), dtype=np.float32)
+    seen = np.zeros((height, width), dtype=np.bool_)
+    _integrate_beams(
+        log_odds,
+        seen,
+        np.ascontiguousarray(start_cells[:, 0]),
+        np.ascontiguousarray(start_cells[:, 1]),
+        np.ascontiguousarray(end_cells[:, 0]),
+        np.ascontiguousarray(end_cells[:, 1]),
+        np.ascontiguousarray(endpoint_hit),
+        np.float32(LOG_ODDS_MISS),
+        np.float32(LOG_ODDS_HIT),
+        np.float32(LOG_ODDS_MIN),
+        np.float32(LOG_ODDS_MAX),
+    )
+    data = np.full((height, width), -1, dtype=np.int8)
+    data[seen & (log_odds > 0.0)] = 100
+    data[seen & (log_odds < 0.0)] = 0
+    return GridMap(data, resolution, (float(low[0]), float(low[1])))
+
+
+@dataclass(frozen=True)
+class ConversionSettings:
+    """Options of one conversion (defaults as in ``--help``).
+
+    Attributes:
+        alphas: Thrun odometry-model alpha1..alpha4 (variance scales, as nav2_amcl).
+        seed: seed of the odometry noise.
+        resolution: map cell size [m].
+        period: scan period [s] used when the log has no usable timestamps.
+        max_range: no-return threshold [m]; None: detect from the log.
+        no_return_tolerance: readings within this of the log's largest reading are no-returns [m].
+        map_max_range: hits used for the map up to this range [m].
+    """
+
+    alphas: tuple[float, float, float, float] = DEFAULT_ALPHAS
+    seed: int = 0
+    resolution: float = 0.05
+    period: float = 1.0
+    max_range: float | None = None
+    no_return_tolerance: float = 0.1
+    map_max_range: float = 40.0
+
+    def __post_init__(self) -> None:
+        if len(self.alphas) != 4 or not all(np.isfinite(a) and a >= 0.0 for a in self.alphas):
+            raise ValueError(f"alpha1..alpha4 must be four finite values >= 0, got {self.alphas!r}")
+        for name in ("resolution", "period", "map_max_range"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0.0:
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if self.max_range is not None and (not np.isfinite(self.max_range) or self.max_range <= 0.0):
+            raise ValueError(f"max_range must be positive, got {self.max_range!r}")
+        if not np.isfinite(self.no_return_tolerance) or self.no_return_tolerance < 0.0:
+            raise ValueError(f"no_return_tolerance must be >= 0, got {self.no_return_tolerance!r}")
+
+
+@dataclass
+class ConversionReport:
+    """What a conversion produced."""
+
+    scans: int
+    skipped_lines: list[tuple[int, str]]
+    beam_counts: list[int]
+    max_range: float
+    duration_s: float
+    path_length_m: float
+    map_cells: tuple[int, int]
+    bag_bytes: int
+    map_yaml: Path | None
+
+    def summary(self) -> str:
+        lines = [
+            f"{self.scans} scans ({', '.join(str(c) for c in self.beam_counts)} beams), "
+            f"{len(self.skipped_lines)} malformed lines skipped",
+            f"no-return threshold {self.max_range:.3f} m, {self.duration_s:.1f} s, path {self.path_length_m:.1f} m",
+            f"map {self.map_cells[0]} x {self.map_cells[1]} cells, bag {self.bag_bytes / 1e6:.2f} MB",
+        ]
+        if self.map_yaml is not None:
+            lines.append(f"map written to {self.map_yaml}")
+        return "\n".join(lines)
+
+
+def _directory_bytes(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
+def convert_log(
+    log_path: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    map_out: str | os.PathLike[str] | None = None,
+    settings: ConversionSettings | None = None,
+    overwrite: bool = False,
+    on_skip: Callable[[int, str], None] | None = _report_to_stderr,
+) -> ConversionReport:
+    """Convert one CARMEN log into a bag at ``out_dir`` (and a map YAML at ``map_out``)."""
+    # Imported here so that parsing and map building stay usable without ROS.
+    from ..ros import conversions
+    from ..ros.bag import BagWriter
+
+    settings = settings or ConversionSettings()
+    log = parse_carmen_log(log_path, on_skip=on_skip)
+    scans = log.scans
+    max_range = settings.max_range or detect_max_range(scans, settings.no_return_tolerance)
+    poses = np.array([s.pose for s in scans])
+    stamps = assign_stamps(np.array([s.timestamp for s in scans]), settings.period)
+    rng = np.random.default_rng(settings.seed)
+    alpha1, alpha2, alpha3, alpha4 = settings.alphas
+    odom = simulate_odometry(poses, OdometryMotionModel(alpha1, alpha2, alpha3, alpha4), rng)
+
+    geometry = [beam_geometry(s.ranges.size) for s in scans]
+    angle_sets = [a0 + inc * np.arange(s.ranges.size) for (a0, inc), s in zip(geometry, scans, strict=True)]
+    range_sets = [s.ranges for s in scans]
+    grid_map = build_occupancy_map(
+        poses, angle_sets, range_sets, max_range, resolution=settings.resolution, map_max_range=settings.map_max_range
+    )
+
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        if not overwrite:
+            raise CarmenLogError(f"output bag {str(out_dir)!r} exists (use --overwrite)")
+        shutil.rmtree(out_dir)
+    microsecond = 1000
+    period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else settings.period
+    with BagWriter(out_dir) as writer:
+        first_ns = int(round(stamps[0] * 1e9))
+        writer.write("/map", conversions.grid_map_to_msg(grid_map, float(stamps[0])), first_ns - 4 * microsecond)
+        previous_stamp = stamps[0]
+        for i, scan in enumerate(scans):
+            stamp = float(stamps[i])
+            stamp_ns = int(round(stamp * 1e9))
+            dt = stamp - previous_stamp
+            if i > 0 and dt > 0.0:
+                step = odometry_delta(odom[i - 1], odom[i])
+                velocity = (step.trans / dt, (step.rot1 + step.rot2) / dt)
+            else:
+                velocity = (0.0, 0.0)
+            previous_stamp = stamp
+            writer.write(
+                "/odom",
+                conversions.odometry_to_msg(stamp, odom[i], frame_id="odom", velocity=velocity),
+                stamp_ns - 2 * microsecond,
+            )
+            writer.write(
+                "/ground_truth", conversions.odometry_to_msg(stamp, poses[i], frame_id="map"), stamp_ns - microsecond
+            )
+            ranges = np.where(np.isfinite(scan.ranges) & (scan.ranges >= max_range), np.inf, scan.ranges)
+            ranges = np.where(np.isfinite(ranges) & (ranges < 0.0), np.nan, ranges)
+            angle_min, increment = geometry[i]
+            writer.write(
+                "/scan",
+                conversions.scan_to_msg(
+                    stamp,
+                    "laser",
+                    angle_min=angle_min,
+                    angle_increment=increment,
+                    ranges=ranges,
+                    range_min=0.0,
+                    range_max=max_range,
+                    scan_time=period,
+                ),
+                stamp_ns,
+            )
+    map_yaml = grid_map.save(map_out) if map_out is not None else None
+    steps = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+    return ConversionReport(
+        scans=len(scans),
+        skipped_lines=log.skipped,
+        beam_counts=sorted({s.ranges.size for s in scans}),
+        max_range=float(max_range),
+        duration_s=float(stamps[-1] - stamps[0]),
+        path_length_m=float(steps.sum()),
+        map_cells=(grid_map.width, grid_map.height),
+        bag_bytes=_directory_bytes(out_dir),
+        map_yaml=map_yaml,
+    )
+
+
+def _parser() -> argparse.ArgumentParser:
+    defaults = ConversionSettings()
+    parser = argparse.ArgumentParser(
+        prog="carmen_to_bag",
+        description="Convert a corrected CARMEN log (FLASER lines) into a rosbag2 MCAP bag with /scan, /odom, "
+        "/ground_truth and /map, and save the occupancy map built from it.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("log", type=Path, help="CARMEN log, plain or .gz")
+    parser.add_argument("out_dir", type=Path, help="bag directory to create")
+    parser.add_argument("--map-out", type=Path, default=None, help="also save the map as this nav2 YAML (+ .pgm)")
+    for index, default in enumerate(defaults.alphas, start=1):
+        meaning = ("rotation from rotation", "rotation from translation", "translation from translation",
+                   "translation from rotation")[index - 1]
+        parser.add_argument(f"--alpha{index}", type=float, default=default,
+                            help=f"odometry noise, {meaning} (variance scale, Thrun table 5.6 / nav2_amcl)")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the odometry noise")
+    parser.add_argument("--resolution", type=float, default=defaults.resolution, help="map cell size [m]")
+    parser.add_argument("--period", type=float, default=defaults.period,
+                        help="scan period [s] when the log has no usable timestamps")
+    parser.add_argument("--max-range", type=float, default=None,
+                        help="no-return threshold [m] (default: the log's largest reading minus the tolerance)")
+    parser.add_argument("--no-return-tolerance", type=float, default=defaults.no_return_tolerance,
+                        help="readings this close to the log's largest reading are no-returns [m]")
+    parser.add_argument("--map-max-range", type=float, default=defaults.map_max_range,
+                        help="hits farther than this are not used as map endpoints [m]")
+    parser.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        settings = ConversionSettings(
+            alphas=(args.alpha1, args.alpha2, args.alpha3, args.alpha4),
+            seed=args.seed,
+            resolution=args.resolution,
+            period=args.period,
+            max_range=args.max_range,
+            no_return_tolerance=args.no_return_tolerance,
+            map_max_range=args.map_max_range,
+        )
+        report = convert_log(args.log, args.out_dir, map_out=args.map_out, settings=settings, overwrite=args.overwrite)
+    except (ValueError, LocalizationSuiteError) as exc:
+        print(f"carmen_to_bag: error: {exc}", file=sys.stderr)
+        return 1
+    print(report.summary())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,190 @@
+"""carmen_to_bag: a slice of the real Intel log converted and read back, and bad logs."""
+
+from __future__ import annotations
+
+import gzip
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_localization_suite.core.grid_map import load_map_yaml
+from robot_localization_suite.core.motion import odometry_delta
+from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.bag import bag_topics, read_bag
+from robot_localization_suite.tools import carmen_to_bag
+from robot_localization_suite.tools.carmen_to_bag import CarmenLogError, ConversionSettings, convert_log
+
+INTEL_LOG = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
+SLICE_LINES = 1200  # ~50 scans of the Intel log: enough for a map, fast to convert
+
+
+def log_slice(lines: int) -> list[str]:
+    if not INTEL_LOG.is_file():
+        pytest.skip(f"the Intel log is not at {INTEL_LOG}")
+    with gzip.open(INTEL_LOG, "rt") as stream:
+        return list(itertools.islice(stream, lines))
+
+
+def flaser_poses(lines: list[str]) -> np.ndarray:
+    poses = []
+    for line in lines:
+        tokens = line.split()
+        if tokens and tokens[0] == "FLASER":
+            count = int(tokens[1])
+            poses.append([float(v) for v in tokens[2 + count : 5 + count]])
+    return np.array(poses)
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory):
+    """The first lines of the Intel log, gzipped, converted once for all tests here."""
+    lines = log_slice(SLICE_LINES)
+    work = tmp_path_factory.mktemp("carmen")
+    log_path = work / "intel_slice.log.gz"
+    with gzip.open(log_path, "wt") as stream:
+        stream.writelines(lines)
+    report = convert_log(log_path, work / "intel_slice", map_out=work / "intel_slice.yaml", settings=ConversionSettings(seed=3))
+    return {"lines": lines, "bag": work / "intel_slice", "yaml": work / "intel_slice.yaml", "report": report,
+            "log": log_path, "work": work}
+
+
+def test_converted_scans_have_the_log_beam_count_fov_and_pose_count(converted):
+    expected = flaser_poses(converted["lines"])
+    assert len(expected) > 30
+    assert bag_topics(converted["bag"]) == {
+        "/map": "nav_msgs/msg/OccupancyGrid",
+        "/odom": "nav_msgs/msg/Odometry",
+        "/ground_truth": "nav_msgs/msg/Odometry",
+        "/scan": "sensor_msgs/msg/LaserScan",
+    }
+    scans = [conversions.scan_from_msg(m.msg) for m in read_bag(converted["bag"], ["/scan"])]
+    truth = [conversions.odometry_from_msg(m.msg) for m in read_bag(converted["bag"], ["/ground_truth"])]
+    assert len(scans) == len(truth) == len(expected)
+    for scan in scans:
+        assert scan.beam_count == 180  # the Intel log's FLASER lines carry 180 readings
+        assert scan.angles[0] == pytest.approx(-np.pi / 2)  # CARMEN: first beam at -90 degrees, 1 degree apart
+        assert scan.field_of_view == pytest.approx(np.pi)
+    # Ground truth is the corrected pose of each FLASER line, stamped like its scan.
+    assert np.array([p for _, p in truth]) == pytest.approx(expected, abs=1e-6)
+    assert [s for s, _ in truth] == pytest.approx([s.stamp for s in scans])
+    assert np.all(np.diff([s.stamp for s in scans]) > 0)
+
+
+def test_no_returns_become_inf_with_range_max_at_the_threshold(converted):
+    raw = np.concatenate([np.array(line.split()[2:182], dtype=float) for line in converted["lines"]
+                          if line.startswith("FLASER")])
+    msgs = [m.msg for m in read_bag(converted["bag"], ["/scan"])]
+    ranges = np.concatenate([np.asarray(m.ranges) for m in msgs])
+    threshold = raw.max() - ConversionSettings().no_return_tolerance
+    assert msgs[0].range_max == pytest.approx(threshold, abs=1e-4)
+    assert np.array_equal(np.isinf(ranges), raw >= threshold)
+    assert np.isinf(ranges).any()  # the slice does hold no-returns (81.83 m readings)
+    hits = ~np.isinf(ranges)
+    assert ranges[hits] == pytest.approx(raw[hits], abs=1e-5)
+
+
+def test_map_is_free_along_the_trajectory_and_has_walls(converted):
+    grid_map = load_map_yaml(converted["yaml"])
+    assert grid_map.resolution == pytest.approx(0.05)
+    poses = flaser_poses(converted["lines"])
+    assert grid_map.is_free(poses[:, :2]).all()
+    assert grid_map.occupied_mask.sum() > 500  # walls from ~50 scans
+    assert grid_map.unknown_mask.any()  # never-seen cells stay unknown
+    # The bag's /map is the same map.
+    msg = next(read_bag(converted["bag"], ["/map"])).msg
+    in_bag = conversions.grid_map_from_msg(msg)
+    assert np.array_equal(in_bag.occupied_mask, grid_map.occupied_mask)
+    assert np.array_equal(in_bag.free_mask, grid_map.free_mask)
+
+
+def test_scan_endpoints_land_on_occupied_cells(converted):
+    grid_map = load_map_yaml(converted["yaml"])
+    poses = flaser_poses(converted["lines"])
+    scans = [conversions.scan_from_msg(m.msg) for m in read_bag(converted["bag"], ["/scan"])]
+    endpoints = np.vstack([scan.hit_endpoints(pose) for scan, pose in zip(scans, poses, strict=True)])
+    cells = grid_map.world_to_cell(endpoints)
+    occupied = grid_map.occupied_mask[cells[:, 1], cells[:, 0]]
+    assert occupied.mean() > 0.8  # the rest were cleared later by beams passing through (people, clutter)
+
+
+def test_odometry_is_noisy_but_follows_the_corrected_steps(converted):
+    truth = np.array([conversions.odometry_from_msg(m.msg)[1] for m in read_bag(converted["bag"], ["/ground_truth"])])
+    odom_msgs = [m.msg for m in read_bag(converted["bag"], ["/odom"])]
+    odom = np.array([conversions.odometry_from_msg(m)[1] for m in odom_msgs])
+    assert odom_msgs[0].header.frame_id == "odom" and odom_msgs[0].child_frame_id == "base_link"
+    assert odom[0] == pytest.approx([0.0, 0.0, 0.0])
+    true_steps = np.array([odometry_delta(a, b).trans for a, b in itertools.pairwise(truth)])
+    odom_steps = np.array([odometry_delta(a, b).trans for a, b in itertools.pairwise(odom)])
+    assert np.abs(odom_steps - true_steps).max() < 0.1 * true_steps.max() + 0.02
+    assert not np.allclose(odom_steps, true_steps, atol=1e-9)  # noise was added
+
+
+def test_same_seed_same_bag(converted, tmp_path):
+    convert_log(converted["log"], tmp_path / "again", settings=ConversionSettings(seed=3))
+    first = [m.msg.pose.pose.position.x for m in read_bag(converted["bag"], ["/odom"])]
+    again = [m.msg.pose.pose.position.x for m in read_bag(tmp_path / "again", ["/odom"])]
+    assert first == again
+
+
+def test_malformed_line_is_reported_with_its_line_number_and_skipped(tmp_path, capsys):
+    lines = log_slice(200)
+    flaser = [i for i, line in enumerate(lines) if line.startswith("FLASER")]
+    truncated_index = flaser[1]
+    lines[truncated_index] = " ".join(lines[truncated_index].split()[:100]) + "\n"  # cut in the middle of the ranges
+    log_path = tmp_path / "broken.log"
+    log_path.write_text("".join(lines))
+    report = convert_log(log_path, tmp_path / "broken")
+    line_number = truncated_index + 1
+    assert report.skipped_lines[0][0] == line_number
+    assert report.scans == len(flaser) - 1
+    assert f"line {line_number}: malformed FLASER line (truncated" in capsys.readouterr().err
+
+
+def test_non_numeric_field_is_reported(tmp_path):
+    lines = log_slice(200)
+    index = next(i for i, line in enumerate(lines) if line.startswith("FLASER"))
+    tokens = lines[index].split()
+    tokens[5] = "1.0x"
+    lines[index] = " ".join(tokens) + "\n"
+    log_path = tmp_path / "bad_number.log"
+    log_path.write_text("".join(lines))
+    skipped = []
+    log = carmen_to_bag.parse_carmen_log(log_path, on_skip=lambda n, why: skipped.append((n, why)))
+    assert skipped == [(index + 1, "malformed FLASER line (field '1.0x' is not a number)")]
+    assert len(log.scans) == sum(line.startswith("FLASER") for line in lines) - 1
+
+
+def test_log_without_flaser_lines_is_an_error(tmp_path):
+    log_path = tmp_path / "odom_only.log"
+    log_path.write_text("# a CARMEN log\nODOM 0 0 0 0 0 0 0.1 host 0.1\nODOM 0.1 0 0 0 0 0 0.2 host 0.2\n")
+    with pytest.raises(CarmenLogError, match="no usable FLASER line"):
+        convert_log(log_path, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    assert carmen_to_bag.main([str(log_path), str(tmp_path / "out")]) == 1
+
+
+def test_missing_log_is_an_error(tmp_path):
+    with pytest.raises(CarmenLogError, match="does not exist"):
+        carmen_to_bag.parse_carmen_log(tmp_path / "nope.log.gz")
+
+
+def test_beam_geometry_follows_carmen():
+    assert carmen_to_bag.beam_geometry(180) == pytest.approx((-np.pi / 2, np.pi / 180))
+    assert carmen_to_bag.beam_geometry(181) == pytest.approx((-np.pi / 2, np.pi / 180))
+    assert carmen_to_bag.beam_geometry(361) == pytest.approx((-np.pi / 2, np.pi / 360))
+    assert carmen_to_bag.beam_geometry(91) == pytest.approx((-np.pi / 2, np.pi / 90))
+
+
+def test_stamps_are_made_increasing_or_synthesised():
+    fixed = carmen_to_bag.assign_stamps(np.array([1.0, 2.0, 1.5, 3.0]), period=1.0)
+    assert np.all(np.diff(fixed) > 0) and fixed[0] == 1.0 and fixed[3] == 3.0
+    assert carmen_to_bag.assign_stamps(np.zeros(4), period=0.5).tolist() == [0.5, 1.0, 1.5, 2.0]
+
+
+def test_settings_refuse_bad_values():
+    with pytest.raises(ValueError, match="resolution must be positive"):
+        ConversionSettings(resolution=0.0)
+    with pytest.raises(ValueError, match="alpha1..alpha4"):
+        ConversionSettings(alphas=(0.1, -1.0, 0.1, 0.1))
