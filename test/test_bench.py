@@ -1,0 +1,266 @@
+"""rls_bench end to end on a small bag written here, with the echo test double."""
+
+from __future__ import annotations
+
+import functools
+import json
+
+import numpy as np
+import pytest
+from echo_localizer import EchoLocalizer
+
+from robot_localization_suite.core import metrics
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.raycast import RayCaster
+from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.bag import BagWriter
+from robot_localization_suite.tools import bench
+
+SCAN_PERIOD = 0.1  # [s]
+KIDNAP_AT = 10.0  # [s] after the first scan
+REQUIRED_FIELDS = {
+    "correct", "fine", "time_to_first_fix_s", "kidnap_recovery_s", "correct_rate", "fine_rate", "rmse_xy_m",
+    "rmse_theta_rad", "update_ms_median", "update_ms_p95", "peak_rss_mb", "outputs", "mode",
+}
+
+
+def room_map() -> GridMap:
+    """A 12 m x 8 m room at 5 cm with walls all round and one pillar."""
+    data = np.zeros((160, 240), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[60:80, 150:170] = 100
+    return GridMap(data, 0.05, (0.0, 0.0))
+
+
+def true_trajectory(stamps: np.ndarray, kidnap: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Ground truth and odometry: driving +x at 0.4 m/s; the truth jumps 3 m in y at KIDNAP_AT."""
+    t = stamps - stamps[0]
+    odom = np.stack([0.4 * t, np.zeros_like(t), np.zeros_like(t)], axis=1)
+    truth = odom + np.array([1.0, 2.0, 0.0])
+    if kidnap:
+        truth[t >= KIDNAP_AT - 1e-9, 1] += 3.0
+    return truth, odom
+
+
+def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap: bool = True, duration: float = 20.0):
+    grid_map = room_map()
+    stamps = 100.0 + np.arange(0.0, duration + 1e-9, SCAN_PERIOD)
+    truth, odom = true_trajectory(stamps, kidnap)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    ranges = RayCaster(grid_map, max_range=10.0).cast(truth, angles)
+    with BagWriter(path) as writer:
+        if map_topic:
+            writer.write("/map", conversions.grid_map_to_msg(grid_map, stamps[0]), int(stamps[0] * 1e9) - 3000)
+        for stamp, true_pose, odom_pose, scan in zip(stamps, truth, odom, ranges, strict=True):
+            ns = int(round(stamp * 1e9))
+            writer.write("/odom", conversions.odometry_to_msg(stamp, odom_pose, frame_id="odom"), ns - 2000)
+            if truth_topic:
+                writer.write("/ground_truth", conversions.odometry_to_msg(stamp, true_pose, frame_id="map"), ns - 1000)
+            writer.write("/scan", conversions.scan_to_msg(stamp, "laser", angle_min=angles[0],
+                                                          angle_increment=angles[1] - angles[0], ranges=scan,
+                                                          range_min=0.05, range_max=10.0), ns)
+    return stamps, truth
+
+
+@pytest.fixture(scope="module")
+def kidnap_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bags") / "room_kidnap"
+    stamps, truth = write_bag(path)
+    return path, metrics.Trajectory(stamps, truth)
+
+
+def lost_for_two_seconds(stamp: float) -> tuple[float, float, float] | None:
+    """Echo error: right, except for 2 s after the kidnapping, when it still reports the old place."""
+    since_kidnap = stamp - 100.0 - KIDNAP_AT
+    return (0.0, -3.0, 0.0) if -1e-9 <= since_kidnap < 2.0 - 1e-9 else (0.0, 0.0, 0.0)
+
+
+def constant_offset(stamp: float) -> tuple[float, float, float]:
+    return (0.3, 0.0, 0.0)
+
+
+def never(stamp: float) -> None:
+    return None
+
+
+def echo_spec(truth: metrics.Trajectory, error, name: str = "echo", **kwargs) -> bench.LocalizerSpec:
+    return bench.LocalizerSpec(name, functools.partial(EchoLocalizer, truth, error, **kwargs))
+
+
+def test_kidnap_recovery_and_outputs_end_to_end(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    summary = bench.run_benchmark([path], [echo_spec(truth, lost_for_two_seconds)], tmp_path, isolate=False)
+    fields = summary["room_kidnap"]["echo"]
+    assert REQUIRED_FIELDS <= set(fields)
+    assert fields["mode"] == "global"
+    assert fields["outputs"] == 201 and fields["inputs"] == 201
+    assert fields["kidnappings"] == 1
+    assert fields["kidnap_recovery_s"] == [pytest.approx(2.0, abs=SCAN_PERIOD)]
+    assert fields["time_to_first_fix_s"] == 0.0
+    assert fields["correct"] == 181 and fields["fine"] == 181  # 20 outputs 3 m off, the rest exact
+    assert fields["correct_rate"] == pytest.approx(181 / 201, abs=1e-4)
+    assert fields["rmse_xy_m"] == pytest.approx(0.0, abs=1e-6)  # the wrong ones fall in the 5 s after the jump
+    assert fields["update_ms_median"] is not None and fields["update_ms_p95"] >= fields["update_ms_median"]
+    assert fields["peak_rss_mb"] > 10
+    assert fields["map"] == "room_kidnap:/map"
+    # Files: JSON equal to the return value, a markdown table, three plots.
+    assert json.loads((tmp_path / "summary.json").read_text()) == json.loads(json.dumps(summary))
+    table = (tmp_path / "summary.md").read_text()
+    assert "| room_kidnap | echo | 201 | 0.9 |" in table
+    for kind in ("trajectory", "error", "update_time"):
+        png = tmp_path / "plots" / "room_kidnap" / f"echo_{kind}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_constant_offset_end_to_end(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path, isolate=False,
+                                 plots=False)["room_kidnap"]["echo"]
+    assert fields["correct_rate"] == 1.0
+    assert fields["fine_rate"] == 0.0
+    assert fields["rmse_xy_m"] == pytest.approx(0.3, abs=1e-6)
+    assert fields["kidnap_recovery_s"] == [0.0]  # the echo follows the jump at once
+
+
+def test_localizer_that_never_publishes_gives_nulls(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    fields = bench.run_benchmark([path], [echo_spec(truth, never, name="silent")], tmp_path,
+                                 isolate=False)["room_kidnap"]["silent"]
+    assert fields["outputs"] == 0
+    for key in ("time_to_first_fix_s", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
+        assert fields[key] is None
+    assert fields["kidnap_recovery_s"] == [None]
+    assert fields["correct"] == 0
+    assert fields["update_ms_median"] is not None  # it was asked 201 times, and timed
+    assert "| room_kidnap | silent | 0 | – |" in (tmp_path / "summary.md").read_text()
+
+
+def test_bag_without_ground_truth_reports_timing(tmp_path, capsys):
+    path = tmp_path / "no_truth"
+    _, truth_poses = write_bag(path, truth_topic=False, kidnap=False, duration=3.0)
+    truth = metrics.Trajectory(100.0 + np.arange(0.0, 3.0 + 1e-9, SCAN_PERIOD), truth_poses)
+    summary = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path / "out", isolate=False)
+    fields = summary["no_truth"]["echo"]
+    assert "no /ground_truth" in capsys.readouterr().err
+    assert fields["ground_truth"] is False and "no /ground_truth" in fields["note"]
+    assert fields["outputs"] == 31 and fields["update_ms_median"] is not None
+    assert fields["correct_rate"] is None and fields["correct"] is None
+
+
+def test_tracking_mode_sends_the_first_true_pose(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    built = []
+
+    def factory():
+        built.append(EchoLocalizer(truth, constant_offset))
+        return built[-1]
+
+    fields = bench.run_benchmark([path], [bench.LocalizerSpec("echo", factory)], tmp_path, mode="tracking",
+                                 isolate=False, plots=False)["room_kidnap"]["echo"]
+    assert fields["mode"] == "tracking"
+    assert built[0].initial_pose == pytest.approx(truth.poses[0])
+    assert built[0].odometry_count == 201
+    assert built[0].grid_map is not None and built[0].grid_map.width == 240
+
+
+def test_localizer_specific_fields_from_details(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    nodes = np.array([[1.0, 2.0], [5.0, 2.0], [5.0, 5.0]])
+
+    def details(stamp: float, true_pose: np.ndarray) -> dict:
+        late = stamp - 100.0 >= 15.0
+        # A box around the truth, theta interval shifted by 2 pi; the last 5 s the box is 1 m off.
+        shift = 1.0 if late else 0.0
+        box = np.array([[true_pose[0] - 0.1 + shift, true_pose[0] + 0.1 + shift],
+                        [true_pose[1] - 0.1, true_pose[1] + 0.1],
+                        [true_pose[2] + 2 * np.pi - 0.1, true_pose[2] + 2 * np.pi + 0.1]])
+        nearest = nodes[np.argmin(np.hypot(*(nodes - true_pose[:2]).T))]
+        return {"boxes": box[None], "place_xy": nearest if not late else nodes[2], "node_xy": nodes,
+                "heading_corrected": True}
+
+    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset, details=details)], tmp_path,
+                                 isolate=False, plots=False)["room_kidnap"]["echo"]
+    assert fields["containment_rate"] == pytest.approx(150 / 201, abs=1e-4)
+    # The last 5 s the truth is near node 1 or 2 and the output says node 2: right only when nearest is node 2.
+    truth_after = truth.poses[truth.stamps - 100.0 >= 15.0 - 1e-9]
+    nearest_is_2 = np.argmin(np.hypot(nodes[None, :, 0] - truth_after[:, None, 0],
+                                      nodes[None, :, 1] - truth_after[:, None, 1]), axis=1) == 2
+    assert fields["correct_place_rate"] == pytest.approx((150 + nearest_is_2.sum()) / 201, abs=1e-4)
+    assert fields["heading_error_when_corrected_deg"]["max"] == pytest.approx(0.0, abs=1e-6)
+    assert fields["heading_error_when_corrected_deg"]["count"] == 201
+
+
+def test_global_fixes_report_rates_and_recall(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    spec = echo_spec(truth, constant_offset, decoys=3)  # right answer at rank 4
+    summary = bench.run_global_fixes([path], [spec], tmp_path, every=10, isolate=False)
+    fields = summary["room_kidnap"]["echo"]
+    assert fields["fixes"] == 21
+    assert fields["global_correct_rate"] == 0.0  # the best candidate is always a decoy
+    assert fields["recall_at_k"] == {"1": 0.0, "5": 1.0, "10": 1.0, "30": 1.0, "50": 1.0, "100": 1.0}
+    assert fields["fix_ms_median"] is not None
+    table = (tmp_path / "summary.md").read_text()
+    assert "| room_kidnap | echo | 21 | 0 | 0 | 1 0, 5 1, 10 1, 30 1, 50 1, 100 1 |" in table
+    assert "recall@k: a correct candidate among the first k" in table
+
+
+def test_global_fixes_leave_out_localizers_without_global_fix(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+
+    class TrackingOnly(EchoLocalizer):
+        global_fix = None
+
+    spec = bench.LocalizerSpec("tracker", lambda: TrackingOnly(truth, constant_offset))
+    assert bench.run_global_fixes([path], [spec], tmp_path, isolate=False) == {"room_kidnap": {}}
+
+
+def test_run_in_a_child_process(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    summary = bench.run_benchmark([path], [echo_spec(truth, lost_for_two_seconds)], tmp_path, isolate=True,
+                                  plots=False)
+    fields = summary["room_kidnap"]["echo"]
+    assert fields["kidnap_recovery_s"] == [pytest.approx(2.0, abs=SCAN_PERIOD)]
+    assert fields["peak_rss_mb"] > 50  # the child's own ru_maxrss: python + numpy + rclpy
+
+
+def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+
+    def broken():
+        raise RuntimeError("cannot build")
+
+    summary = bench.run_benchmark([path], [bench.LocalizerSpec("broken", broken),
+                                           echo_spec(truth, constant_offset)], tmp_path, isolate=False, plots=False)
+    assert "cannot build" in summary["room_kidnap"]["broken"]["error"]
+    assert summary["room_kidnap"]["echo"]["correct_rate"] == 1.0
+
+
+def test_map_option_wins_over_the_bag_map(kidnap_bag, tmp_path):
+    path, _ = kidnap_bag
+    other = GridMap(np.zeros((10, 20), dtype=np.int8), 0.1, (-1.0, -1.0))
+    yaml_path = other.save(tmp_path / "other.yaml")
+    reference = bench.load_reference(path)
+    grid_map, source = bench.resolve_map(reference, yaml_path)
+    assert grid_map.width == 20 and source == str(yaml_path)
+    grid_map, source = bench.resolve_map(reference, None)
+    assert grid_map.width == 240 and source == "room_kidnap:/map"
+
+
+def test_bag_without_map_and_no_config_map_is_reported(tmp_path):
+    path = tmp_path / "nomap_xyz"
+    stamps, truth_poses = write_bag(path, map_topic=False, kidnap=False, duration=1.0)
+    truth = metrics.Trajectory(stamps, truth_poses)
+    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path / "out",
+                                 isolate=False)["nomap_xyz"]["echo"]
+    assert fields["error"].startswith("no map")
+
+
+def test_command_line_refuses_bad_arguments(kidnap_bag, tmp_path, capsys):
+    path, _ = kidnap_bag
+    assert bench.main([str(path), "--localizers", "no_such_localizer", "--out", str(tmp_path)]) == 1
+    assert "no_such_localizer" in capsys.readouterr().err
+    assert bench.main([str(path), "--set", "bad", "--out", str(tmp_path)]) == 1
+    assert "name.param=value" in capsys.readouterr().err
+    assert bench.main(["--out", str(tmp_path)]) == 1
+    assert bench._parse_overrides(["mcl_baseline.max_particles=5000", "ial_localizer.outliers=2.5"]) == {
+        "mcl_baseline": {"max_particles": 5000}, "ial_localizer": {"outliers": 2.5}}
