@@ -1,0 +1,485 @@
+"""PIL on-line matching (Lambert et al. 2020, sections 2.4-2.5) and what this package adds to it.
+
+Pieces, in the order a query uses them:
+
+* :class:`SensorLayout`: the ``N_s`` sensors evenly spaced over the field of
+  view, and the finer learned directions (``angular_upsampling`` per sensor
+  step) around the full circle.
+* :class:`BeamMapping`: live beams -> ``N_s`` sensors. ``"nearest"`` (default)
+  takes, for each sensor, the valid beam whose angle is nearest to the
+  sensor's angle within half a sensor step: the learned profile is one ray per
+  direction, so one beam per sensor is the consistent choice. ``"sector_min"``
+  takes the shortest valid reading within the sensor's sector (more robust to
+  thin obstacles, biased short). No-returns read ``R``; a sensor with no valid
+  beam in its sector is *invalid* and carries zero weight.
+* :func:`sheet_features`: the level functions of every valid tile for each
+  *heading sheet*. For a 360 degree sensor there is one sheet (the level
+  functions are orientation-free). For a limited field of view there are ``K``
+  reference headings ``h_j = 2 pi j / K``: sheet j holds the level functions
+  of the sector of the learned profile a sensor at heading ``h_j`` would see.
+* :func:`correlate_profiles`: theta for every candidate by circular
+  cross-correlation (FFT) of the live profile with the learned profile at 4x
+  finer angles. The paper's "correlation" is read as the masked sum of squared
+  differences, which is itself a sum of two FFT cross-correlations
+  (``sum w a^2 - 2 (w a) * B + w * B^2``): unlike a raw product it does not
+  favour bright (near) profiles, and it ignores invalid sensors. Its best few
+  local minima are then rescored by a *truncated* squared difference
+  (``min(d^2, tau^2)``), which a few unmodelled obstacles cannot dominate
+  (measured on a simulated floor: 97 % vs 91 % for plain SSD and 88 % for
+  Pearson correlation, DESIGN.md). Scores are normalised by ``tau^2`` so that
+  0 is a perfect match and 1 means every sensor disagrees by more than tau.
+* :func:`refine_poses`: optional sub-tile refinement: Gauss-Newton on the
+  distance field (scan endpoints pulled onto obstacles, residuals above a
+  truncation ignored), the pose kept within a bounded shift of its tile.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ScanError
+from .pil_levels import LevelFunction
+from .scan import Scan
+from .se2 import wrap_angle
+
+__all__ = [
+    "SensorLayout",
+    "BeamMapping",
+    "LiveProfile",
+    "sheet_features",
+    "feature_distances",
+    "correlate_profiles",
+    "truncated_scores",
+    "refine_poses",
+    "BEAM_MAPPINGS",
+]
+
+BEAM_MAPPINGS = ("nearest", "sector_min")
+_TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class SensorLayout:
+    """``N_s`` sensors over a field of view, and the learned directions over the full circle.
+
+    Attributes:
+        field_of_view: angular span the sensors cover [rad], at most 2 pi.
+        sensor_count: ``N_s``.
+        upsampling: learned directions per sensor step.
+    """
+
+    field_of_view: float
+    sensor_count: int
+    upsampling: int
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.field_of_view) and 0.0 < self.field_of_view <= _TWO_PI + 1e-9):
+            raise ValueError(f"field_of_view must be in (0, 2 pi] rad, got {self.field_of_view!r}")
+        if self.sensor_count < 4:
+            raise ValueError(f"sensor_count must be at least 4, got {self.sensor_count!r}")
+        if self.upsampling < 1:
+            raise ValueError(f"upsampling must be at least 1, got {self.upsampling!r}")
+
+    @property
+    def full_circle(self) -> bool:
+        return self.field_of_view >= _TWO_PI - 1e-6
+
+    @property
+    def circle_sensors(self) -> int:
+        """Sensors that would fill the full circle at this spacing."""
+        if self.full_circle:
+            return self.sensor_count
+        return max(self.sensor_count, int(round(_TWO_PI * self.sensor_count / self.field_of_view)))
+
+    @property
+    def sensor_spacing(self) -> float:
+        """``Delta``: angle between neighbouring sensors [rad]."""
+        return _TWO_PI / self.circle_sensors
+
+    @property
+    def angle_count(self) -> int:
+        """Learned directions over the full circle."""
+        return self.circle_sensors * self.upsampling
+
+    def sensor_angles(self, scan: Scan) -> NDArray[np.float64]:
+        """Sensor angles ``(N_s,)`` in the laser frame [rad] for this scan's beams.
+
+        360 degrees: ``angle_min + k Delta``. Limited FOV: centred on the scan's
+        middle angle, ``centre + (k - (N_s - 1) / 2) Delta``.
+        """
+        k = np.arange(self.sensor_count, dtype=np.float64)
+        if self.full_circle:
+            return scan.angles[0] + k * self.sensor_spacing
+        centre = 0.5 * (scan.angles[0] + scan.angles[-1])
+        return centre + (k - 0.5 * (self.sensor_count - 1)) * self.sensor_spacing
+
+
+@dataclass(frozen=True)
+class LiveProfile:
+    """The live scan as ``N_s`` sensors (equation 3).
+
+    Attributes:
+        intensities: ``(N_s,)`` ``I = 1 - min(D, R) / R``; 0 where invalid.
+        valid: ``(N_s,)`` sensors that received a valid beam.
+        sensor_angles: ``(N_s,)`` laser-frame angles of the sensors [rad].
+    """
+
+    intensities: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    sensor_angles: NDArray[np.float64]
+
+    @property
+    def weights(self) -> NDArray[np.float64]:
+        return self.valid.astype(np.float64)
+
+
+class BeamMapping:
+    """Assignment of a scan geometry's beams to the ``N_s`` sensors (see the module docstring).
+
+    Built once per scan geometry (angle_min, increment, beam count) and reused.
+    """
+
+    def __init__(self, layout: SensorLayout, scan: Scan, mode: str) -> None:
+        if mode not in BEAM_MAPPINGS:
+            raise ValueError(f"beam mapping must be one of {BEAM_MAPPINGS}, got {mode!r}")
+        self.mode = mode
+        self.geometry = (float(scan.angles[0]), float(scan.angles[-1]), scan.beam_count)
+        self.sensor_angles = layout.sensor_angles(scan)
+        half = 0.5 * layout.sensor_spacing + 1e-9
+        offsets = np.abs(wrap_angle(scan.angles[None, :] - self.sensor_angles[:, None]))
+        distance = np.where(offsets <= half, offsets, np.inf)
+        width = max(1, int(np.isfinite(distance).sum(axis=1).max()))
+        order = np.argsort(distance, axis=1, kind="stable")[:, :width]
+        self.beams = np.where(np.isfinite(np.take_along_axis(distance, order, axis=1)), order, -1)
+
+    def matches(self, scan: Scan) -> bool:
+        return self.geometry == (float(scan.angles[0]), float(scan.angles[-1]), scan.beam_count)
+
+    def profile(self, scan: Scan, max_range: float) -> LiveProfile:
+        """Sensor intensities of ``scan``; no-returns and hits beyond ``R`` read ``R``."""
+        clean = np.minimum(scan.clean_ranges(), max_range)  # NaN stays NaN (invalid), inf -> R
+        padded = np.append(clean, np.nan)  # index -1 -> NaN
+        candidates = padded[self.beams]  # (N_s, width), nearest beam first
+        usable = ~np.isnan(candidates)
+        valid = usable.any(axis=1)
+        if self.mode == "nearest":
+            first = np.argmax(usable, axis=1)
+            ranges = candidates[np.arange(len(first)), first]
+        else:
+            ranges = np.where(usable, candidates, np.inf).min(axis=1)
+        intensities = np.where(valid, 1.0 - np.where(valid, ranges, max_range) / max_range, 0.0)
+        return LiveProfile(intensities, valid, self.sensor_angles)
+
+
+def sheet_sectors(layout: SensorLayout, first_sensor_angle: float, headings: int) -> NDArray[np.int64]:
+    """Learned-direction indices ``(S, n)`` each heading sheet sees.
+
+    360 degrees: one sheet, every direction. Limited FOV: ``S = K`` sheets;
+    sheet j covers the ``N_s * upsampling`` directions from half a sensor step
+    before ``h_j + phi_0`` (``phi_0`` the first sensor's angle).
+    """
+    n = layout.angle_count
+    if layout.full_circle:
+        return np.arange(n, dtype=np.int64)[None, :]
+    step = _TWO_PI / n
+    span = layout.sensor_count * layout.upsampling
+    sheets = []
+    for j in range(headings):
+        start = int(round((_TWO_PI * j / headings + first_sensor_angle) / step)) - layout.upsampling // 2
+        sheets.append((start + np.arange(span)) % n)
+    return np.asarray(sheets, dtype=np.int64)
+
+
+def sheet_features(
+    intensities: NDArray[np.float32],
+    sectors: NDArray[np.int64],
+    functions: Sequence[LevelFunction],
+    *,
+    chunk: int = 4096,
+) -> NDArray[np.float32]:
+    """Level functions ``(S, F, T)`` of every learned tile on every heading sheet (section 2.3)."""
+    tiles = intensities.shape[0]
+    out = np.empty((sectors.shape[0], len(functions), tiles), dtype=np.float32)
+    for s, sector in enumerate(sectors):
+        full = sector.size == intensities.shape[1] and np.array_equal(sector, np.arange(sector.size))
+        for first in range(0, tiles, chunk):
+            block = intensities[first : first + chunk]
+            profiles = block if full else block[:, sector]
+            for f, function in enumerate(functions):
+                out[s, f, first : first + chunk] = function.evaluate(profiles)
+    return out
+
+
+def feature_distances(
+    features: NDArray[np.float32],
+    live: NDArray[np.float64],
+    alphas: NDArray[np.float64],
+    sigmas: NDArray[np.float64],
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Equation (4) and a ranking from the same terms.
+
+    Args:
+        features: ``(S, F, T)`` learned ``I_n`` per sheet.
+        live: ``(F,)`` live ``E_n``.
+        alphas, sigmas: ``(F,)``.
+
+    Returns:
+        ``passes`` ``(T,)``: ``AND_n alpha_n |I_n - E_n| < sigma_n`` on at least one sheet (the
+        binary image of equation 4), and ``rank`` ``(T,)``: ``min over sheets of
+        sum_n (alpha_n |I_n - E_n| / sigma_n)^2`` (smaller is more alike).
+    """
+    if features.shape[1] == 0:
+        tiles = features.shape[2]
+        return np.ones(tiles, dtype=bool), np.zeros(tiles)
+    scaled = np.abs(features - live[None, :, None].astype(np.float32)) * (alphas / sigmas)[None, :, None].astype(
+        np.float32
+    )
+    passes = (scaled < 1.0).all(axis=1).any(axis=0)
+    rank = np.einsum("sft,sft->st", scaled, scaled).min(axis=0)
+    return passes, rank.astype(np.float64)
+
+
+@dataclass(frozen=True)
+class Correlation:
+    """Theta of each candidate tile (section 2.5).
+
+    Attributes:
+        shifts: ``(P,)`` best learned-direction shift (fractional after parabolic interpolation).
+        scores: ``(P,)`` normalised truncated squared difference at that shift (0 best, 1 worst).
+    """
+
+    shifts: NDArray[np.float64]
+    scores: NDArray[np.float64]
+
+
+def correlate_profiles(
+    learned: NDArray[np.float32],
+    live: LiveProfile,
+    upsampling: int,
+    truncation: float,
+    hypotheses: int = 3,
+) -> Correlation:
+    """Circular cross-correlation by FFT of the live profile with each learned profile.
+
+    Live sensor k at heading theta looks along world direction ``theta + phi_k``;
+    with learned direction index ``s + k * upsampling`` this is shift ``s`` and
+    ``theta = s * step - phi_0``.
+
+    Args:
+        learned: ``(P, J)`` learned intensities of the candidate tiles.
+        live: the live profile (``N_s`` sensors, ``N_s * upsampling <= J``).
+        upsampling: learned directions per sensor step.
+        truncation: ``tau`` of the truncated score [intensity units].
+        hypotheses: local minima of the SSD rescored per candidate.
+    """
+    candidates, n = learned.shape
+    sensors = live.intensities.size
+    if candidates == 0:
+        return Correlation(np.zeros(0), np.zeros(0))
+    weights = live.weights
+    offsets = np.arange(sensors) * upsampling
+    weighted_live = np.zeros(n)
+    weighted_live[offsets] = weights * live.intensities
+    mask = np.zeros(n)
+    mask[offsets] = weights
+    learned64 = learned.astype(np.float64)
+    spectrum = np.fft.rfft(learned64, axis=1)
+    spectrum_sq = np.fft.rfft(learned64 * learned64, axis=1)
+    cross = np.fft.irfft(np.conj(np.fft.rfft(weighted_live))[None, :] * spectrum, n, axis=1)
+    energy = np.fft.irfft(np.conj(np.fft.rfft(mask))[None, :] * spectrum_sq, n, axis=1)
+    ssd = float(np.sum(weights * live.intensities**2)) - 2.0 * cross + energy  # (P, n), masked SSD per shift
+
+    left = np.roll(ssd, 1, axis=1)
+    right = np.roll(ssd, -1, axis=1)
+    minima = np.where((ssd <= left) & (ssd < right), ssd, np.inf)
+    keep = min(max(1, hypotheses), n)
+    if keep < n:
+        best_shifts = np.argpartition(minima, keep - 1, axis=1)[:, :keep]
+    else:
+        best_shifts = np.tile(np.arange(n), (candidates, 1))
+    is_minimum = np.isfinite(np.take_along_axis(minima, best_shifts, axis=1))
+    # Truncated squared difference at each hypothesis shift: (P, keep, N_s) gathered samples.
+    index = (best_shifts[:, :, None] + offsets[None, None, :]) % n
+    samples = np.take_along_axis(learned64, index.reshape(candidates, -1), axis=1).reshape(index.shape)
+    squared = np.minimum((samples - live.intensities[None, None, :]) ** 2, truncation**2)
+    total_weight = max(float(weights.sum()), 1.0)
+    scores = (squared * weights).sum(axis=2) / (total_weight * truncation**2)
+    scores = np.where(is_minimum, scores, np.inf)
+    # A candidate whose SSD curve is flat has no strict minimum: fall back to its global argmin.
+    flat = ~np.isfinite(scores).any(axis=1)
+    if flat.any():
+        argmin = np.argmin(ssd[flat], axis=1)
+        scores[flat, 0] = truncated_scores(
+            np.take_along_axis(learned64[flat], (argmin[:, None] + offsets[None, :]) % n, axis=1), live, truncation
+        )
+        best_shifts[flat, 0] = argmin
+    pick = np.argmin(scores, axis=1)
+    rows = np.arange(candidates)
+    shift = best_shifts[rows, pick]
+    score = scores[rows, pick]
+    # Sub-step theta: a parabola through the SSD at the shift and its two neighbours.
+    centre = ssd[rows, shift]
+    before = ssd[rows, (shift - 1) % n]
+    after = ssd[rows, (shift + 1) % n]
+    curvature = before - 2.0 * centre + after
+    with np.errstate(divide="ignore", invalid="ignore"):
+        offset = np.where(curvature > 1e-12, 0.5 * (before - after) / curvature, 0.0)
+    return Correlation(shift + np.clip(offset, -0.5, 0.5), score)
+
+
+def truncated_scores(learned: NDArray[np.floating], live: LiveProfile, truncation: float) -> NDArray[np.float64]:
+    """Normalised truncated squared difference of aligned profiles ``(P, N_s)`` with the live one."""
+    weights = live.weights
+    squared = np.minimum((np.asarray(learned, dtype=np.float64) - live.intensities[None, :]) ** 2, truncation**2)
+    return (squared * weights).sum(axis=1) / (max(float(weights.sum()), 1.0) * truncation**2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _field_at(field: np.ndarray, gx: float, gy: float, resolution: float) -> tuple[float, float, float]:
+    """Bilinear value and gradient [per m] of a cell-centred field at cell coordinates (gx, gy)."""
+    height, width = field.shape
+    fx = gx - 0.5
+    fy = gy - 0.5
+    ix = int(math.floor(fx))
+    iy = int(math.floor(fy))
+    if ix < 0 or iy < 0 or ix >= width - 1 or iy >= height - 1:
+        return math.inf, 0.0, 0.0
+    tx = fx - ix
+    ty = fy - iy
+    v00 = field[iy, ix]
+    v10 = field[iy, ix + 1]
+    v01 = field[iy + 1, ix]
+    v11 = field[iy + 1, ix + 1]
+    value = (1 - tx) * (1 - ty) * v00 + tx * (1 - ty) * v10 + (1 - tx) * ty * v01 + tx * ty * v11
+    d_dx = ((1 - ty) * (v10 - v00) + ty * (v11 - v01)) / resolution
+    d_dy = ((1 - tx) * (v01 - v00) + tx * (v11 - v10)) / resolution
+    return value, d_dx, d_dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine_kernel(
+    poses: np.ndarray,
+    angles: np.ndarray,
+    ranges: np.ndarray,
+    field: np.ndarray,
+    origin_x: float,
+    origin_y: float,
+    resolution: float,
+    truncation: float,
+    iterations: int,
+    max_shift: float,
+    out: np.ndarray,
+) -> None:
+    for c in range(poses.shape[0]):
+        x0 = poses[c, 0]
+        y0 = poses[c, 1]
+        x = x0
+        y = y0
+        theta = poses[c, 2]
+        damping = 1e-3
+        for _ in range(iterations):
+            h = np.zeros((3, 3))
+            g = np.zeros(3)
+            used = 0
+            for b in range(angles.shape[0]):
+                heading = theta + angles[b]
+                cos_h = math.cos(heading)
+                sin_h = math.sin(heading)
+                px = x + ranges[b] * cos_h
+                py = y + ranges[b] * sin_h
+                value, d_dx, d_dy = _field_at(field, (px - origin_x) / resolution, (py - origin_y) / resolution, resolution)
+                if value >= truncation:
+                    continue
+                j0 = d_dx
+                j1 = d_dy
+                j2 = ranges[b] * (-d_dx * sin_h + d_dy * cos_h)
+                jac = (j0, j1, j2)
+                for r in range(3):
+                    g[r] += jac[r] * value
+                    for q in range(3):
+                        h[r, q] += jac[r] * jac[q]
+                used += 1
+            if used < 3:
+                break
+            for r in range(3):
+                h[r, r] += damping * h[r, r] + 1e-9
+            step = -np.linalg.solve(h, g)
+            # Bounded steps keep Gauss-Newton inside the basin of the candidate.
+            step_xy = math.hypot(step[0], step[1])
+            if step_xy > 0.1:
+                step[0] *= 0.1 / step_xy
+                step[1] *= 0.1 / step_xy
+            if abs(step[2]) > 0.1:
+                step[2] = math.copysign(0.1, step[2])
+            x += step[0]
+            y += step[1]
+            theta += step[2]
+            shift = math.hypot(x - x0, y - y0)
+            if shift > max_shift:
+                x = x0 + (x - x0) * max_shift / shift
+                y = y0 + (y - y0) * max_shift / shift
+            if step_xy < 1e-4 and abs(step[2]) < 1e-4:
+                break
+        out[c, 0] = x
+        out[c, 1] = y
+        out[c, 2] = math.atan2(math.sin(theta), math.cos(theta))
+
+
+def refine_poses(
+    poses: NDArray[np.float64],
+    beam_angles: NDArray[np.float64],
+    beam_ranges: NDArray[np.float64],
+    distance_field: NDArray[np.float32],
+    origin: tuple[float, float],
+    resolution: float,
+    *,
+    truncation: float,
+    iterations: int,
+    max_shift: float,
+) -> NDArray[np.float64]:
+    """Sub-tile refinement: scan endpoints pulled onto the map's obstacles (Gauss-Newton on the distance field).
+
+    Args:
+        poses: ``(P, 3)`` starting laser poses [m, m, rad].
+        beam_angles, beam_ranges: ``(B,)`` the live hits [rad, m].
+        distance_field: ``(H, W)`` distance to the nearest obstacle [m] (GridMap.distance_field).
+        origin, resolution: of the map [m].
+        truncation: endpoints farther than this from any obstacle are ignored [m].
+        iterations: Gauss-Newton iterations at most.
+        max_shift: the refined position stays within this distance of the start [m].
+
+    Returns:
+        ``(P, 3)`` refined poses.
+    """
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    out = poses.copy()
+    if poses.shape[0] == 0 or beam_angles.size < 3:
+        return out
+    _refine_kernel(
+        poses,
+        np.ascontiguousarray(beam_angles, dtype=np.float64),
+        np.ascontiguousarray(beam_ranges, dtype=np.float64),
+        np.ascontiguousarray(distance_field, dtype=np.float32),
+        float(origin[0]),
+        float(origin[1]),
+        float(resolution),
+        float(truncation),
+        int(iterations),
+        float(max_shift),
+        out,
+    )
+    return out
+
+
+def check_live_profile(profile: LiveProfile, min_valid_fraction: float) -> None:
+    """Raise :class:`ScanError` when too few sensors received a valid beam."""
+    valid = int(profile.valid.sum())
+    needed = max(3, int(math.ceil(min_valid_fraction * profile.valid.size)))
+    if valid < needed:
+        raise ScanError(f"only {valid} of {profile.valid.size} PIL sensors received a valid beam (need {needed})")

@@ -1,0 +1,395 @@
+"""PIL (core/pil*.py): learning, level functions, (x, y) and theta on-line, limited FOV, cache, bad input."""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robot_localization_suite.core.errors import MapError, ScanError
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
+from robot_localization_suite.core.pil import PilLocalizer, PilSettings, make_level_functions
+from robot_localization_suite.core.pil_learning import TileGrid, default_cache_dir
+from robot_localization_suite.core.pil_levels import LEVEL_FUNCTION_NAMES
+from robot_localization_suite.core.raycast import RayCaster
+from robot_localization_suite.core.scan import Scan
+from robot_localization_suite.core.se2 import angle_difference
+
+RESOLUTION = 0.05
+
+
+def _asymmetric_room() -> GridMap:
+    """An 8 m x 5 m room with an L-shaped partition and two boxes: no symmetry to confuse PIL."""
+    data = np.zeros((100, 160), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100  # outer walls
+    data[:60, 100:102] = 100  # partition from the south wall, x = 5 m, up to y = 3 m
+    data[58:60, 100:130] = 100  # its foot towards the east, y = 3 m
+    data[70:80, 20:40] = 100  # box at x 1-2 m, y 3.5-4 m
+    data[15:25, 60:66] = 100  # pillar at x 3-3.3 m, y 0.75-1.25 m
+    data[80:98, 140:158] = 100  # cupboard in the north-east corner
+    return GridMap(data, RESOLUTION, (0.0, 0.0))
+
+
+def _symmetric_room() -> GridMap:
+    """A bare 6 m x 2.5 m rectangle: its centre looks the same facing east or west."""
+    data = np.zeros((50, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    return GridMap(data, RESOLUTION, (0.0, 0.0))
+
+
+def _scan(
+    grid_map: GridMap,
+    pose: np.ndarray,
+    *,
+    beams: int = 360,
+    fov: float = 2.0 * math.pi,
+    noise: float = 0.0,
+    rng: np.random.Generator | None = None,
+    range_max: float = 12.0,
+    stamp: float = 0.0,
+) -> Scan:
+    if fov >= 2.0 * math.pi:
+        angles = -math.pi + np.arange(beams) * (2.0 * math.pi / beams)
+    else:
+        angles = -0.5 * fov + np.arange(beams) * (fov / (beams - 1))
+    ranges = RayCaster(grid_map, max_range=range_max).cast(np.asarray(pose, dtype=np.float64), angles).astype(np.float64)
+    if noise > 0.0:
+        assert rng is not None
+        hit = np.isfinite(ranges)
+        ranges[hit] += rng.normal(0.0, noise, int(hit.sum()))
+    return Scan.from_laser_fields(
+        stamp=stamp,
+        angle_min=float(angles[0]),
+        angle_increment=float(angles[1] - angles[0]),
+        ranges=ranges,
+        range_min=0.05,
+        range_max=range_max,
+    )
+
+
+def _settings(tmp_path: Path, **overrides: object) -> PilSettings:
+    base = PilSettings(max_range=8.0, cache_dir=str(tmp_path / "cache"), show_progress=False)
+    return replace(base, **overrides)
+
+
+def _pose_error(estimate_pose: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    return float(np.hypot(*(estimate_pose[:2] - truth[:2]))), abs(float(angle_difference(estimate_pose[2], truth[2])))
+
+
+@pytest.fixture(scope="module")
+def room() -> GridMap:
+    return _asymmetric_room()
+
+
+@pytest.fixture(scope="module")
+def learned(room: GridMap, tmp_path_factory: pytest.TempPathFactory) -> PilLocalizer:
+    localizer = PilLocalizer(_settings(tmp_path_factory.mktemp("pil")))
+    localizer.set_map(room)
+    return localizer
+
+
+# -- learning ---------------------------------------------------------------------------------
+def test_tile_transform_m_round_trips_and_puts_tile_centres_on_integers() -> None:
+    grid = TileGrid(origin=(-3.0, 2.0), tile_size=0.2, lines=10, columns=20)
+    # Tile (L=2, C=5) has its centre at x = -3 + 5.5 * 0.2 = -1.9, y = 2 + 2.5 * 0.2 = 2.5.
+    np.testing.assert_allclose(grid.tile_to_world([2, 5]), [-1.9, 2.5])
+    np.testing.assert_allclose(grid.world_to_image([-1.9, 2.5]), [2.0, 5.0], atol=1e-12)
+    # A point 0.09 m off the centre is still in that tile; 0.11 m is in the next column.
+    assert grid.world_to_tile([-1.81, 2.5]).tolist() == [2, 5]
+    assert grid.world_to_tile([-1.79, 2.5]).tolist() == [2, 6]
+    np.testing.assert_allclose(grid.inverse_matrix @ grid.matrix, np.eye(3), atol=1e-12)
+
+
+def test_learning_covers_free_tiles_only_with_intensities_of_equation_2(learned: PilLocalizer, room: GridMap) -> None:
+    learning = learned.learning
+    assert learning is not None
+    # 8 m x 5 m at 0.2 m: 40 columns, 25 lines.
+    assert (learning.grid.lines, learning.grid.columns) == (25, 40)
+    assert np.all(room.is_free(learning.tile_centres))
+    # Every free-centred tile is learned: none was left out.
+    _, _, centres = learning.grid.all_centres()
+    assert learning.tile_count == int(room.is_free(centres).sum())
+    # 57 sensors x 4 finer directions around the circle.
+    assert learning.angle_count == 57 * 4
+    intensities = learning.intensities
+    assert intensities.min() >= 0.0 and intensities.max() <= 1.0
+    # Direction 0 (east) from the tile at x = 0.7, y = 2.5 (L=12, C=3): the east wall of the box-free
+    # row is the partition at x = 5 m, 4.3 m away: I = 1 - 4.3 / 8.
+    index = learning.tile_index_image()[12, 3]
+    assert index >= 0
+    assert intensities[index, 0] == pytest.approx(1.0 - 4.3 / 8.0, abs=2e-3)
+
+
+# -- level functions -----------------------------------------------------------------------------
+_ALL_LEVELS = make_level_functions(PilSettings())
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    profile=st.lists(st.floats(0.0, 1.0, allow_nan=False), min_size=8, max_size=96),
+    shift=st.integers(-200, 200),
+)
+def test_every_level_function_is_invariant_to_circular_shifts(profile: list[float], shift: int) -> None:
+    assert [f.name for f in _ALL_LEVELS] == list(LEVEL_FUNCTION_NAMES)
+    values = np.asarray(profile)
+    rolled = np.roll(values, shift)
+    for function in _ALL_LEVELS:
+        assert float(function.evaluate(rolled)) == pytest.approx(float(function.evaluate(values)), abs=1e-9), function.name
+
+
+def test_level_functions_tell_profiles_apart() -> None:
+    """Invariance must not come from being constant: each function separates two different profiles."""
+    angles = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
+    round_room = np.full(64, 0.5)
+    corridor = 0.5 + 0.4 * np.cos(2.0 * angles)  # near walls on two opposite sides
+    off_centre = 0.5 + 0.3 * np.cos(angles) + 0.1 * np.cos(2.0 * angles)
+    small_room = np.full(64, 0.8)
+    for function in _ALL_LEVELS:
+        outputs = {round(float(function.evaluate(p)), 9) for p in (round_room, corridor, off_centre, small_room)}
+        assert len(outputs) >= 2, function.name
+
+
+def test_candidate_count_shrinks_as_sigma_shrinks(room: GridMap, tmp_path: Path) -> None:
+    truth = np.array([2.5, 2.1, 0.4])
+    counts = []
+    for sigma in (0.3, 0.1, 0.03, 0.01):
+        overrides = {f"{name}_sigma": sigma for name in LEVEL_FUNCTION_NAMES}
+        localizer = PilLocalizer(_settings(tmp_path, min_candidates=0, refine_candidates=0, **overrides))
+        localizer.set_map(room)
+        estimate = localizer.global_fix(_scan(room, truth))
+        counts.append(estimate.details["filter_count"])
+        assert len(estimate.candidates) == estimate.details["filter_count"]
+        image = localizer.candidate_image
+        assert image is not None and int(image.sum()) == estimate.details["filter_count"]
+    assert counts == sorted(counts, reverse=True)
+    assert counts[-1] < counts[0] / 4
+
+
+# -- (x, y, theta) on-line -------------------------------------------------------------------------
+def test_noise_free_scan_at_a_tile_centre_returns_that_tile_and_theta_within_one_step(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, refine_candidates=0))
+    localizer.set_map(room)
+    learning = localizer.learning
+    assert learning is not None
+    step = 2.0 * math.pi / 57
+    for lc, theta in (((12, 3), 1.0), ((5, 20), -2.3), ((20, 33), 0.05)):
+        index = learning.tile_index_image()[lc]
+        assert index >= 0
+        truth = np.array([*learning.tile_centres[index], theta])
+        estimate = localizer.global_fix(_scan(room, truth))
+        assert learning.grid.world_to_tile(estimate.pose[:2]).tolist() == list(lc)
+        assert abs(angle_difference(estimate.pose[2], theta)) <= step
+        assert estimate.status is LocalizerStatus.LOCALIZED
+
+
+def test_noisy_scans_at_random_poses_are_localized_finely(learned: PilLocalizer, room: GridMap) -> None:
+    rng = np.random.default_rng(3)
+    distance = room.distance_field()
+    poses = [p for p in room.sample_free_poses(200, rng) if distance[room.world_to_cell(p[:2])[1], room.world_to_cell(p[:2])[0]] > 0.3]
+    fine = 0
+    for truth in poses[:25]:
+        estimate = learned.global_fix(_scan(room, truth, noise=0.02, rng=rng))
+        dxy, dtheta = _pose_error(estimate.pose, truth)
+        fine += dxy < 0.2 and dtheta < 0.1
+        # Candidates come best first and the covariance is a covariance.
+        assert np.allclose(estimate.candidates[0], estimate.pose)
+        assert np.all(np.diff(estimate.candidate_weights) <= 1e-12)
+        assert np.all(np.linalg.eigvalsh(estimate.covariance) > 0.0)
+    assert fine >= 23
+
+
+def test_symmetric_room_is_reported_ambiguous_with_both_headings_as_candidates(tmp_path: Path) -> None:
+    corridor = _symmetric_room()
+    localizer = PilLocalizer(_settings(tmp_path))
+    localizer.set_map(corridor)
+    truth = np.array([3.0, 1.25, 0.3])
+    estimate = localizer.global_fix(_scan(corridor, truth))
+    assert estimate.status is LocalizerStatus.AMBIGUOUS
+    mirrored = np.array([3.0, 1.25, 0.3 + math.pi])
+    near = [min(_pose_error(c, t)[0] + _pose_error(c, t)[1] for c in estimate.candidates[:10]) for t in (truth, mirrored)]
+    assert max(near) < 0.3
+    # The spread of the near-best candidates shows in the heading variance.
+    assert estimate.covariance[2, 2] > 1.0
+
+
+def test_kidnapping_is_recovered_in_one_update_and_the_window_is_used_otherwise(learned: PilLocalizer, room: GridMap) -> None:
+    localizer = learned
+    localizer.reinitialize()
+    first = localizer.on_scan(_scan(room, np.array([1.0, 1.0, 0.2]), stamp=1.0))
+    assert first.details["window"] == "whole_map"
+    nearby = localizer.on_scan(_scan(room, np.array([1.2, 1.1, 0.3]), stamp=2.0))
+    assert nearby.details["window"] == "window"
+    assert _pose_error(nearby.pose, np.array([1.2, 1.1, 0.3]))[0] < 0.2
+    kidnapped = np.array([6.6, 4.0, -2.0])  # 6 m away, outside the 4 m window
+    after = localizer.on_scan(_scan(room, kidnapped, stamp=3.0))
+    assert after.details["window"] == "whole_map_after_window"
+    dxy, dtheta = _pose_error(after.pose, kidnapped)
+    assert dxy < 0.2 and dtheta < 0.1
+
+
+def test_odometry_moves_the_window_centre(learned: PilLocalizer, room: GridMap) -> None:
+    localizer = learned
+    localizer.set_initial_pose(np.array([1.0, 1.0, 0.0]), np.eye(3) * 0.01)
+    localizer.on_odometry(0.0, np.array([0.0, 0.0, 0.0]))
+    localizer.set_initial_pose(np.array([1.0, 1.0, 0.0]), np.eye(3) * 0.01)
+    localizer.on_odometry(1.0, np.array([3.5, 2.0, 0.0]))  # moved to (4.5, 3.0) in the map
+    truth = np.array([4.5, 3.6, 0.0])
+    estimate = localizer.on_scan(_scan(room, truth, stamp=4.0))
+    # 3.5 m away from the last estimate: found inside the moved window, not by a whole-map search.
+    assert estimate.details["window"] == "window"
+    assert _pose_error(estimate.pose, truth)[0] < 0.2
+
+
+# -- limited field of view ------------------------------------------------------------------------
+def test_a_180_degree_scanner_localizes_with_heading_sheets(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, field_of_view=math.pi))
+    localizer.set_map(room)
+    assert localizer.layout.angle_count == 114 * 4
+    rng = np.random.default_rng(5)
+    poses = [np.array([1.0, 2.0, 0.3]), np.array([3.9, 3.0, -1.9]), np.array([6.5, 1.4, 2.8]), np.array([7.0, 3.6, -0.7])]
+    for truth in poses:
+        estimate = localizer.global_fix(_scan(room, truth, beams=181, fov=math.pi, noise=0.01, rng=rng))
+        assert "warning" not in estimate.details
+        assert estimate.details["sheets"] == 8
+        dxy, dtheta = _pose_error(estimate.pose, truth)
+        assert dxy < 0.2 and dtheta < 0.1, (truth, estimate.pose)
+
+
+def test_a_scan_with_another_field_of_view_warns_and_relearns(room: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    localizer = PilLocalizer(_settings(tmp_path))  # learned for 360 degrees
+    localizer.set_map(room)
+    truth = np.array([6.5, 1.4, 2.8])
+    with caplog.at_level(logging.WARNING):
+        estimate = localizer.global_fix(_scan(room, truth, beams=241, fov=math.radians(240.0)))
+    # Scan.field_of_view counts one increment beyond the end-to-end span: 240 + 1 degrees.
+    assert "the scan covers 241.0 deg but PIL learned 360.0 deg: relearning" in estimate.details["warning"]
+    assert any("relearning" in record.getMessage() for record in caplog.records)
+    assert localizer.layout.field_of_view == pytest.approx(math.radians(241.0), abs=1e-6)
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.2 and dtheta < 0.1
+    # The same geometry again: no new warning.
+    again = localizer.global_fix(_scan(room, truth, beams=241, fov=math.radians(240.0)))
+    assert "warning" not in again.details
+
+
+def test_a_shorter_range_max_relearns_with_that_range(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path))
+    localizer.set_map(room)
+    truth = np.array([2.5, 2.1, 0.4])
+    estimate = localizer.global_fix(_scan(room, truth, range_max=4.0))
+    assert "range_max" in estimate.details["warning"]
+    assert localizer.max_range == pytest.approx(4.0)
+    assert _pose_error(estimate.pose, truth)[0] < 0.2
+
+
+# -- cache ---------------------------------------------------------------------------------------
+def test_cached_learning_reloads_identically_and_a_corrupt_cache_is_rebuilt(
+    room: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    settings_ = _settings(tmp_path)
+    first = PilLocalizer(settings_)
+    first.set_map(room)
+    assert first.learning is not None and not first.learning.from_cache
+    files = list((tmp_path / "cache" / "pil").glob("pil_*.npz"))
+    assert len(files) == 1 and room.fingerprint() in files[0].name
+
+    second = PilLocalizer(settings_)
+    second.set_map(room)
+    assert second.learning is not None and second.learning.from_cache
+    assert np.array_equal(second.learning.ranges_mm, first.learning.ranges_mm)
+    assert np.array_equal(second.learning.intensities, first.learning.intensities)
+    assert np.array_equal(second.learning.tile_centres, first.learning.tile_centres)
+    scan = _scan(room, np.array([2.5, 2.1, 0.4]))
+    np.testing.assert_array_equal(first.global_fix(scan).candidates, second.global_fix(scan).candidates)
+
+    for damage in (b"not a zip file", files[0].read_bytes()[:200]):
+        files[0].write_bytes(damage)
+        third = PilLocalizer(settings_)
+        with caplog.at_level(logging.WARNING):
+            caplog.clear()
+            third.set_map(room)
+        assert any("relearning" in record.getMessage() for record in caplog.records)
+        assert third.learning is not None and not third.learning.from_cache
+        assert np.array_equal(third.learning.ranges_mm, first.learning.ranges_mm)
+    fourth = PilLocalizer(settings_)
+    fourth.set_map(room)
+    assert fourth.learning is not None and fourth.learning.from_cache  # the rebuilt file is sound
+
+
+def test_cache_directory_comes_from_rls_cache_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("RLS_CACHE_DIR", str(tmp_path / "env_cache"))
+    assert default_cache_dir() == tmp_path / "env_cache"
+    localizer = PilLocalizer(PilSettings(max_range=8.0, show_progress=False))
+    localizer.set_map(_symmetric_room())
+    assert list((tmp_path / "env_cache" / "pil").glob("pil_*.npz"))
+
+
+# -- bad input -----------------------------------------------------------------------------------
+def test_bad_readings_are_ignored_and_unusable_scans_raise_scan_error(learned: PilLocalizer, room: GridMap) -> None:
+    truth = np.array([2.5, 2.1, 0.4])
+    scan = _scan(room, truth)
+    ranges = scan.ranges.copy()
+    ranges[::7] = np.nan
+    ranges[3::11] = -1.0
+    ranges[5::13] = -np.inf
+    ranges[6::17] = 1e6  # beyond range_max: a no-return
+    damaged = Scan(1.0, scan.angles, ranges, scan.range_min, scan.range_max)
+    estimate = learned.global_fix(damaged)
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.25 and dtheta < 0.1
+
+    with pytest.raises(ScanError, match="valid beam"):
+        learned.global_fix(Scan(2.0, scan.angles, np.full(scan.beam_count, np.nan), scan.range_min, scan.range_max))
+    mostly_bad = np.full(scan.beam_count, np.nan)
+    mostly_bad[:40] = 2.0
+    with pytest.raises(ScanError, match="valid beam"):
+        learned.on_scan(Scan(3.0, scan.angles, mostly_bad, scan.range_min, scan.range_max))
+    with pytest.raises(ScanError, match="at least 2 beams"):
+        learned.global_fix(Scan(4.0, scan.angles[:1], scan.ranges[:1], scan.range_min, scan.range_max))
+
+
+def test_a_changing_beam_count_is_followed(learned: PilLocalizer, room: GridMap) -> None:
+    truth = np.array([6.5, 1.4, 2.8])
+    for beams in (360, 720, 90, 360):
+        estimate = learned.global_fix(_scan(room, truth, beams=beams))
+        dxy, dtheta = _pose_error(estimate.pose, truth)
+        assert dxy < 0.2 and dtheta < 0.1, beams
+
+
+def test_no_map_and_a_map_without_free_tiles_raise_map_error(tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path))
+    scan = _scan(_symmetric_room(), np.array([3.0, 1.25, 0.0]))
+    with pytest.raises(MapError, match="no map"):
+        localizer.global_fix(scan)
+    with pytest.raises(MapError, match="free space"):
+        localizer.set_map(GridMap(np.full((20, 20), 100, dtype=np.int8), 0.05))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("tile_size", 0.0), ("sensor_count", 2), ("max_range", 100.0), ("energy_sigma", -0.1), ("pq_low", 0.9),
+     ("beam_mapping", "median"), ("field_of_view", 7.0), ("max_candidates", 0)],
+)
+def test_settings_refuse_bad_values_naming_them(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=field):
+        PilSettings(**{field: value})
+
+
+def test_sector_min_beam_mapping_localizes_too(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, beam_mapping="sector_min"))
+    localizer.set_map(room)
+    truth = np.array([3.9, 3.0, -1.9])
+    dxy, dtheta = _pose_error(localizer.global_fix(_scan(room, truth, beams=720)).pose, truth)
+    assert dxy < 0.2 and dtheta < 0.1
+
+
+def test_pil_offers_the_localizer_and_global_fixer_protocols(learned: PilLocalizer) -> None:
+    assert isinstance(learned, Localizer)
+    assert isinstance(learned, GlobalFixer)

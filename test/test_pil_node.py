@@ -1,0 +1,129 @@
+"""The pil_localizer node module: parameters -> core settings, config file, messages through the adapter."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from robot_localization_suite import registry
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import LocalizerStatus
+from robot_localization_suite.core.pil import PilLocalizer, PilSettings
+from robot_localization_suite.core.raycast import RayCaster
+from robot_localization_suite.core.scan import LaserMount
+from robot_localization_suite.core.se2 import angle_difference, compose
+from robot_localization_suite.nodes import pil_localizer
+from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.adapter import LocalizerAdapter
+
+_CONVERTED = {"field_of_view_deg": "field_of_view", "ambiguity_angle_deg": "ambiguity_angle"}
+
+
+def _room() -> GridMap:
+    data = np.zeros((80, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[:45, 70:72] = 100  # partition at x = 3.5 m up to y = 2.25 m
+    data[55:65, 15:30] = 100  # box at x 0.75-1.5 m, y 2.75-3.25 m
+    return GridMap(data, 0.05, (0.0, 0.0))
+
+
+def test_make_localizer_builds_from_the_registry_params_with_the_settings_defaults(tmp_path: Path) -> None:
+    params = registry.localizer_params("pil_localizer", {"cache_dir": str(tmp_path)})
+    localizer = pil_localizer.make_localizer(params)
+    assert isinstance(localizer, PilLocalizer)
+    defaults = PilSettings()
+    for field in fields(PilSettings):
+        if field.name != "cache_dir":
+            assert getattr(localizer.settings, field.name) == pytest.approx(getattr(defaults, field.name)), field.name
+
+
+def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
+    names = [spec.name for spec in pil_localizer.PARAMS]
+    settings_fields = {field.name for field in fields(PilSettings)}
+    assert len(names) == len(set(names))
+    for name in names:
+        assert name in settings_fields or name in _CONVERTED, name
+    assert settings_fields == {_CONVERTED.get(name, name) for name in names}
+    config = yaml.safe_load((repo_root / "config" / "pil_localizer.yaml").read_text())
+    assert set(config["pil_localizer"]["ros__parameters"]) == set(names)
+    for spec in pil_localizer.PARAMS:
+        assert spec.description
+        assert type(config["pil_localizer"]["ros__parameters"][spec.name]) is type(spec.default), spec.name
+
+
+def test_degree_parameters_are_converted_and_bad_values_refused(tmp_path: Path) -> None:
+    params = registry.localizer_params(
+        "pil_localizer", {"field_of_view_deg": 180, "ambiguity_angle_deg": 30.0, "window_size": 0, "cache_dir": str(tmp_path)}
+    )
+    localizer = pil_localizer.make_localizer(params)
+    assert localizer.settings.field_of_view == pytest.approx(math.pi)
+    assert localizer.settings.ambiguity_angle == pytest.approx(math.radians(30.0))
+    assert localizer.layout.angle_count == 114 * 4
+    with pytest.raises(ValueError, match="beam_mapping"):
+        pil_localizer.make_localizer(registry.localizer_params("pil_localizer", {"beam_mapping": "average"}))
+
+
+def test_messages_through_the_adapter_give_the_base_pose_and_bad_scans_are_skipped(tmp_path: Path) -> None:
+    room = _room()
+    params = registry.localizer_params("pil_localizer", {"cache_dir": str(tmp_path), "show_progress": False, "max_range": 6.0})
+    mount = LaserMount(0.2, 0.0, 0.0)
+    logs: list[tuple[str, str]] = []
+    adapter = LocalizerAdapter(pil_localizer.make_localizer(params), node_name="pil_localizer", log=lambda *a: logs.append(a), mount=mount)
+    assert adapter.on_map_msg(conversions.grid_map_to_msg(room, 0.0))
+
+    base = np.array([1.8, 1.4, 0.7])
+    laser = compose(base, mount.pose)
+    angles = -math.pi + np.arange(360) * (2.0 * math.pi / 360)
+    ranges = RayCaster(room, max_range=8.0).cast(laser, angles).astype(np.float64)
+    ranges[::9] = np.nan
+    msg = conversions.scan_to_msg(
+        1.0, "laser", angle_min=-math.pi, angle_increment=2.0 * math.pi / 360, ranges=ranges, range_min=0.05, range_max=8.0
+    )
+    output = adapter.on_scan_msg(msg)
+    assert output is not None
+    assert output.estimate.status is LocalizerStatus.LOCALIZED
+    assert np.hypot(*(output.estimate.pose[:2] - base[:2])) < 0.2
+    assert abs(angle_difference(output.estimate.pose[2], base[2])) < 0.1
+    assert output.pose.header.frame_id == "map"
+    values = {kv.key: kv.value for kv in output.diagnostics.status[0].values}
+    assert int(values["candidate_count"]) == len(output.candidates.poses) > 0
+    assert "filter_count" in values
+
+    bad = conversions.scan_to_msg(
+        2.0, "laser", angle_min=-math.pi, angle_increment=2.0 * math.pi / 360, ranges=np.full(360, np.nan),
+        range_min=0.05, range_max=8.0,
+    )
+    assert adapter.on_scan_msg(bad) is None
+    few = np.full(90, np.nan)
+    few[:5] = 1.0
+    sparse = conversions.scan_to_msg(
+        3.0, "laser", angle_min=-math.pi, angle_increment=2.0 * math.pi / 90, ranges=few, range_min=0.05, range_max=8.0
+    )
+    assert adapter.on_scan_msg(sparse) is None
+    assert any("valid beam" in text for _, text in logs)
+
+
+def test_the_node_declares_every_parameter_and_builds_pil(tmp_path: Path) -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    args = ["pil_localizer", "--ros-args", "-p", f"cache_dir:={tmp_path}", "-p", "field_of_view_deg:=240.0",
+            "-p", "show_progress:=false"]
+    rclpy.init(args=args)
+    try:
+        node = LocalizerNode(pil_localizer.NODE_NAME, pil_localizer.PARAMS, pil_localizer.make_localizer)
+        try:
+            assert isinstance(node.localizer, PilLocalizer)
+            assert node.localizer.settings.field_of_view == pytest.approx(math.radians(240.0))
+            assert node.localizer.settings.cache_dir == str(tmp_path)
+            for spec in pil_localizer.PARAMS:
+                assert node.has_parameter(spec.name), spec.name
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
