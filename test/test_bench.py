@@ -264,3 +264,16 @@ def test_command_line_refuses_bad_arguments(kidnap_bag, tmp_path, capsys):
     assert bench.main(["--out", str(tmp_path)]) == 1
     assert bench._parse_overrides(["mcl_baseline.max_particles=5000", "ial_localizer.outliers=2.5"]) == {
         "mcl_baseline": {"max_particles": 5000}, "ial_localizer": {"outliers": 2.5}}
+
+
+def test_all_mode_pairs_camera_and_laser_localizers_with_their_bags(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    assert bench.discover_bags(path.parent) == [path]
+    camera = bench.LocalizerSpec("camera_echo", lambda: None, uses_camera=True)
+    declared = bench.LocalizerSpec("picky", lambda: None, skip={"room_*": "too large a map"})
+    summary = bench.run_benchmark([path], [camera, declared, echo_spec(truth, constant_offset)], tmp_path,
+                                  isolate=False, plots=False, honour_skips=True)["room_kidnap"]
+    assert summary["camera_echo"]["skipped"] == "no /camera/image_raw in the bag"
+    assert summary["picky"]["skipped"] == "too large a map"
+    assert summary["echo"]["correct_rate"] == 1.0
+    assert "skipped: too large a map" in (tmp_path / "summary.md").read_text()

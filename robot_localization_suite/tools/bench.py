@@ -3,7 +3,7 @@
     rls_bench BAG... --localizers NAMES --out DIR [--map MAP_YAML] [--mode global|tracking]
               [--set name.param=value ...] [--max-seconds S] [--no-plots]
     rls_bench --global-fixes [--every N] BAG... [--localizers NAMES] --out DIR
-    rls_bench --all [--out results]
+    rls_bench --all [--with-global-fixes] [--out results]
 
 Each bag is replayed *in-process* through each localizer with the
 deterministic replay (``ros/bag.py``: messages in bag order, each handled
@@ -28,7 +28,8 @@ core localizer, including updates that publish nothing.
 
 The metrics are defined in ``core/metrics.py`` and README ``## Benchmark``.
 Localizer-specific fields come from ``Estimate.details``: ``boxes``
-(``(K, 3, 2)``, laser frame) -> ``containment_rate``; ``place_xy`` and
+(``(K, 3, 2)``, in the base frame as ``core/ial.py`` writes them) ->
+``containment_rate``; ``place_xy`` and
 ``node_xy`` -> ``correct_place_rate``; ``heading_corrected`` ->
 ``heading_error_when_corrected_deg`` (median, max).
 
@@ -69,7 +70,6 @@ from ..core import metrics
 from ..core.errors import BagError, LocalizationSuiteError, MapError
 from ..core.grid_map import GridMap, load_map_yaml
 from ..core.scan import LaserMount
-from ..core.se2 import compose
 from ..ros import conversions
 from ..ros.adapter import LocalizerAdapter
 from ..ros.bag import BagMessage, bag_topics, read_bag
@@ -321,14 +321,14 @@ def _rss_mb() -> float:
 
 
 def _details_checks(record: RunRecord, details: dict[str, Any], base_truth: NDArray[np.float64],
-                    laser_truth: NDArray[np.float64], estimate_pose: NDArray[np.float64]) -> None:
-    """Localizer-specific checks of one output against the truth at its stamp."""
+                    estimate_pose: NDArray[np.float64]) -> None:
+    """Localizer-specific checks of one output against the (base) truth at its stamp."""
     if not np.all(np.isfinite(base_truth)):
         return
     if "boxes" in details:
         boxes = np.asarray(details["boxes"], dtype=np.float64)
         record.containment = record.containment if record.containment is not None else []
-        record.containment.append(metrics.boxes_contain(boxes, laser_truth))
+        record.containment.append(metrics.boxes_contain(boxes, base_truth))
     if "place_xy" in details and "node_xy" in details:
         record.place_correct = record.place_correct if record.place_correct is not None else []
         record.place_correct.append(metrics.nearest_node_is_place(details["place_xy"], details["node_xy"], base_truth))
@@ -398,8 +398,7 @@ def replay_localizer(
         record.statuses.append(estimate.status.value)
         if estimate.details and truth is not None:
             base_truth = metrics.interpolate_poses(truth, [estimate.stamp], breaks=reference.kidnap_indices)[0]
-            laser_truth = compose(base_truth, spec.mount.pose)
-            _details_checks(record, estimate.details, base_truth, laser_truth, pose)
+            _details_checks(record, estimate.details, base_truth, pose)
 
     def on_odom(msg: Any) -> None:
         try:
@@ -909,6 +908,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="with --all, leave this localizer out on matching bags")
     parser.add_argument("--global-fixes", action="store_true", help="single-scan global fixes instead of replays")
     parser.add_argument("--every", type=int, default=10, help="with --global-fixes: use every N-th scan")
+    parser.add_argument("--with-global-fixes", action="store_true",
+                        help="after the replays, also run --global-fixes into OUT/global_fixes and append its "
+                        "table to OUT/summary.md")
     parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time")
     parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -948,6 +950,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True)
+            if args.with_global_fixes:
+                fixes = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
+                                         map_yaml=args.map, isolate=not args.in_process,
+                                         max_seconds=args.max_seconds, honour_skips=args.all)
+                extra = (args.out / "global_fixes" / "summary.md").read_text().replace("# ", "## ", 1)
+                with open(args.out / "summary.md", "a") as stream:
+                    stream.write("\n" + extra)
+                print(summary_table(summary))
+                summary = fixes
     except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:
         print(f"rls_bench: error: {exc}", file=sys.stderr)
         return 1
