@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 
 import numpy as np
 import pytest
@@ -277,3 +278,14 @@ def test_all_mode_pairs_camera_and_laser_localizers_with_their_bags(kidnap_bag, 
     assert summary["picky"]["skipped"] == "too large a map"
     assert summary["echo"]["correct_rate"] == 1.0
     assert "skipped: too large a map" in (tmp_path / "summary.md").read_text()
+
+
+def exit_at_once():
+    """A factory whose process dies without a Python exception (as a segfault would)."""
+    os._exit(3)
+
+
+def test_a_dying_child_is_an_error_entry(kidnap_bag, tmp_path):
+    path, _ = kidnap_bag
+    summary = bench.run_benchmark([path], [bench.LocalizerSpec("dies", exit_at_once)], tmp_path, isolate=True)
+    assert summary["room_kidnap"]["dies"]["error"] == "child process died (exit code 3)"

@@ -550,15 +550,19 @@ def _run_isolated(func: Callable[..., Any], args: tuple, kwargs: dict, timeout: 
     process = context.Process(target=_child_main, args=(sender, func, args, kwargs), daemon=True)
     process.start()
     sender.close()
+    answered = False
     try:
         if receiver.poll(timeout):
             outcome = receiver.recv()
+            answered = True
         else:
             outcome = ("error", f"no result within {timeout:.0f} s; child stopped")
     except EOFError:
         process.join(5.0)
         outcome = ("error", f"child process died (exit code {process.exitcode})")
     finally:
+        # A child that answered exits by itself (and releases its semaphores); a stuck one is killed.
+        process.join(30.0 if answered else 0.0)
         if process.is_alive():
             process.kill()
         process.join()
