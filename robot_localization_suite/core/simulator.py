@@ -256,8 +256,9 @@ class Simulator:
 
     @property
     def finished(self) -> bool:
-        """Whether the last step of the scenario has been returned."""
-        return self.index >= self.step_count - 1
+        """Whether the last step of the scenario has been returned (never, for an endless one)."""
+        end = self.scenario.end_time
+        return math.isfinite(end) and self.index >= int(round(end / self.period))
 
     @property
     def grid_map(self):
