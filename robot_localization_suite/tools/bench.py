@@ -895,15 +895,14 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rls_bench",
         description="Replay bags through localizers in-process and measure them against /ground_truth.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("bags", nargs="*", type=Path, help="rosbag2 bag directories")
     parser.add_argument("--localizers", nargs="+", help="names (comma or space separated); default: all available")
-    parser.add_argument("--out", type=Path, default=Path("results"), help="output directory")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="output directory (default: results)")
     parser.add_argument("--map", type=Path, default=None, help="map YAML for every bag (default: the bag's /map, "
                         "else config/maps/<bag or prefix>.yaml)")
     parser.add_argument("--mode", choices=("global", "tracking"), default="global",
-                        help="global: no prior; tracking: the first ground-truth pose on initialpose")
+                        help="global (default): no prior; tracking: the first ground-truth pose on initialpose")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME.PARAM=VALUE",
                         help="override a localizer parameter (YAML value)")
     parser.add_argument("--all", action="store_true", help="every available localizer over every bag in bags/")
@@ -911,11 +910,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--skip", action="append", default=[], metavar="NAME:BAG_GLOB",
                         help="with --all, leave this localizer out on matching bags")
     parser.add_argument("--global-fixes", action="store_true", help="single-scan global fixes instead of replays")
-    parser.add_argument("--every", type=int, default=10, help="with --global-fixes: use every N-th scan")
+    parser.add_argument("--every", type=int, default=10, help="with --global-fixes: use every N-th scan (default: 10)")
     parser.add_argument("--with-global-fixes", action="store_true",
                         help="after the replays, also run --global-fixes into OUT/global_fixes and append its "
                         "table to OUT/summary.md")
-    parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time")
+    parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
     parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("-v", "--verbose", action="store_true", help="log the localizers' warnings")
