@@ -10,7 +10,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 DEMO_ARGS ?=
 PYTEST_ARGS ?=
-BENCH_MAX_SECONDS ?= 900
+BENCH_MAX_SECONDS ?= 300
 BENCH_ARGS ?=
 
 .PHONY: setup demo test bench lint clean
