@@ -261,7 +261,9 @@ class NodeProcess:
     def _forward(self, output: Callable[[str, str], None]) -> None:
         assert self.process.stdout is not None
         for line in self.process.stdout:
-            output(self.name, line.rstrip("\n"))
+            # Progress bars redraw with carriage returns, which read as (often blank) lines here.
+            if line.strip():
+                output(self.name, line.rstrip())
 
     def poll(self) -> int | None:
         return self.process.poll()
