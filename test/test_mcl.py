@@ -1,0 +1,308 @@
+"""Monte Carlo localization (core/mcl.py, core/mcl_particles.py, core/sensor_models.py).
+
+Behaviour on a simulated run over a hand-made office (test/mcl_test_world.py):
+tracking, global localization, kidnapping recovery, KLD, resets, determinism
+and bad input. Speed is measured by ``rls_bench``, not here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from mcl_test_world import Drive, drive, office_map, pose_error
+
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
+from robot_localization_suite.core.mcl import MclSettings, MonteCarloLocalizer
+from robot_localization_suite.core.mcl_particles import (
+    cluster_particles,
+    kld_particle_count,
+    kld_sample_limit,
+    low_variance_resample,
+    weighted_pose_statistics,
+)
+from robot_localization_suite.core.scan import Scan
+from robot_localization_suite.core.sensor_models import BeamModel, LikelihoodFieldModel
+
+
+@pytest.fixture(scope="module")
+def office() -> GridMap:
+    return office_map()
+
+
+@pytest.fixture(scope="module")
+def run(office: GridMap) -> Drive:
+    return drive(office, steps=700, seed=3)
+
+
+def _replay(localizer: MonteCarloLocalizer, run: Drive, start: int = 0, stop: int | None = None) -> list[tuple[int, object]]:
+    outputs = []
+    for k in range(start, len(run.stamps) if stop is None else stop):
+        localizer.on_odometry(run.stamps[k], run.odometry[k])
+        estimate = localizer.on_scan(run.scans[k])
+        if estimate is not None:
+            outputs.append((k, estimate))
+    return outputs
+
+
+def _errors(outputs: list[tuple[int, object]], run: Drive) -> np.ndarray:
+    return np.array([pose_error(estimate.pose, run.truth[k]) for k, estimate in outputs])
+
+
+# -- the filter ---------------------------------------------------------------------------------
+def test_the_localizer_satisfies_the_protocol(office: GridMap) -> None:
+    assert isinstance(MonteCarloLocalizer(MclSettings(max_particles=1000), office), Localizer)
+
+
+def test_tracking_from_the_known_pose_stays_within_centimetres(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
+    outputs = _replay(localizer, run)
+    errors = _errors(outputs, run)
+    # 700 steps of 5 cm = 35 m driven; one update per 0.25 m or 0.2 rad
+    assert len(outputs) > 100
+    assert np.sqrt(np.mean(errors[:, 0] ** 2)) < 0.07
+    assert errors[:, 0].max() < 0.25 and errors[:, 1].max() < 0.1
+    assert all(estimate.status is LocalizerStatus.LOCALIZED for _, estimate in outputs[5:])
+    # the covariance is that of a converged cluster
+    assert np.sqrt(outputs[-1][1].covariance[0, 0]) < 0.15
+
+
+def test_global_localization_converges_on_the_non_symmetric_office(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=20000, random_seed=5), office)
+    assert localizer.particle_count == 20000  # uniform start without an initial pose
+    outputs = _replay(localizer, run, stop=300)
+    errors = _errors(outputs, run)
+    assert outputs[0][0] == 0  # the first scan updates although nothing moved yet
+    assert np.all(errors[-15:, 0] < 0.2) and np.all(errors[-15:, 1] < 0.1)
+    assert outputs[-1][1].status is LocalizerStatus.LOCALIZED
+    assert localizer.particle_count < 2000  # KLD brought the global cloud down
+
+
+def test_a_kidnapping_is_detected_and_recovered(office: GridMap) -> None:
+    kidnapped = drive(office, steps=1000, seed=4, kidnap_step=350, kidnap_index=9)
+    localizer = MonteCarloLocalizer(MclSettings(random_seed=4), office)
+    localizer.set_initial_pose(kidnapped.truth[0], np.diag([0.01, 0.01, 0.003]))
+    outputs = _replay(localizer, kidnapped)
+    before = [(k, e) for k, e in outputs if k < 350]
+    after = [(k, e) for k, e in outputs if k >= 350]
+    assert _errors(before, kidnapped)[:, 0].max() < 0.3
+    # the filter notices: not LOCALIZED right after the jump, random particles injected
+    assert any(e.status is not LocalizerStatus.LOCALIZED for _, e in after[:10])
+    assert localizer.counters.injected_particles > 0
+    errors_after = _errors(after, kidnapped)
+    recovered = np.nonzero((errors_after[:, 0] < 0.3) & (errors_after[:, 1] < 0.2))[0]
+    assert len(recovered) > 0
+    recovery_s = kidnapped.stamps[after[recovered[0]][0]] - kidnapped.stamps[350]
+    assert recovery_s < 30.0
+    assert np.all(errors_after[recovered[0] + 10 :, 0] < 0.3)  # and stays recovered
+
+
+def test_reinitialize_spreads_particles_over_free_space(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=8000), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))
+    _replay(localizer, run, stop=60)
+    assert localizer.particle_count < 8000
+    localizer.reinitialize()
+    particles = localizer.particles
+    assert len(particles) == 8000
+    assert np.all(office.is_free(particles[:, :2]))
+    # every room of the office gets its share (west room x < 6, south-east y < 6, north-east)
+    west = particles[:, 0] < 6.0
+    south_east = ~west & (particles[:, 1] < 6.0)
+    north_east = ~west & ~south_east
+    for room in (west, south_east, north_east):
+        assert room.mean() > 0.15
+    assert np.ptp(particles[:, 2]) > 6.0  # headings over the whole circle
+    assert np.allclose(localizer.weights, 1.0 / 8000)
+
+
+def test_set_initial_pose_resets_the_cloud_around_the_pose(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=5000), office)
+    _replay(localizer, run, stop=50)
+    pose = np.array([12.0, 8.0, 3.0])
+    covariance = np.diag([0.3**2, 0.2**2, 0.1**2])
+    localizer.set_initial_pose(pose, covariance)
+    particles = localizer.particles
+    assert len(particles) == 5000
+    mean, spread = weighted_pose_statistics(particles, np.ones(len(particles)))
+    assert np.hypot(*(mean[:2] - pose[:2])) < 0.03
+    assert abs(math.remainder(mean[2] - pose[2], 2 * math.pi)) < 0.01
+    assert np.allclose(np.sqrt(np.diag(spread)), [0.3, 0.2, 0.1], rtol=0.08)
+    # the next scan updates even without motion, around the new pose
+    estimate = localizer.on_scan(run.scans[50])
+    assert estimate is not None
+
+
+def test_kld_shrinks_the_particle_count_after_convergence(office: GridMap, run: Drive) -> None:
+    settings = MclSettings(min_particles=300, max_particles=10000)
+    localizer = MonteCarloLocalizer(settings, office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.5**2, 0.5**2, 0.3**2]))
+    outputs = _replay(localizer, run, stop=200)
+    counts = [estimate.details["particles"] for _, estimate in outputs]
+    assert counts[0] == 10000
+    # converged: a compact cloud occupies a few 0.5 m x 0.5 m x 10 deg bins, KLD needs few samples
+    assert max(counts[-10:]) < 600
+    assert min(counts[-10:]) >= 300
+
+
+def test_the_same_seed_gives_the_same_estimates(office: GridMap, run: Drive) -> None:
+    def estimates(seed: int) -> np.ndarray:
+        localizer = MonteCarloLocalizer(MclSettings(max_particles=3000, random_seed=seed), office)
+        return np.array([e.pose for _, e in _replay(localizer, run, stop=120)])
+
+    first, second, other = estimates(7), estimates(7), estimates(8)
+    assert np.array_equal(first, second)
+    assert not np.array_equal(first, other)
+
+
+def test_updates_wait_for_motion_and_a_nomotion_request_forces_one(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))
+    # first scan, no odometry at all yet: updates anyway
+    assert localizer.on_scan(run.scans[0]) is not None
+    localizer.on_odometry(run.stamps[0], run.odometry[0])
+    scan = run.scans[0]
+    still = Scan(scan.stamp + 0.1, scan.angles, scan.ranges, scan.range_min, scan.range_max)
+    assert localizer.on_scan(still) is None  # no motion since the last update
+    localizer.request_nomotion_update()
+    assert localizer.on_scan(still) is not None
+    # 0.25 m of odometry (update_min_d) triggers the next one
+    localizer.on_odometry(run.stamps[0] + 0.2, run.odometry[0] + np.array([0.1, 0.0, 0.0]))
+    assert localizer.on_scan(Scan(scan.stamp + 0.2, scan.angles, scan.ranges, 0.05, scan.range_max)) is None
+    localizer.on_odometry(run.stamps[0] + 0.3, run.odometry[0] + np.array([0.26, 0.0, 0.0]))
+    assert localizer.on_scan(Scan(scan.stamp + 0.3, scan.angles, scan.ranges, 0.05, scan.range_max)) is not None
+
+
+# -- bad input ----------------------------------------------------------------------------------
+def test_bad_readings_use_only_the_valid_beams(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, 0.05**2]))
+    rng = np.random.default_rng(0)
+    corrupted: list[tuple[int, object]] = []
+    for k in range(300):
+        scan = run.scans[k]
+        ranges = scan.ranges.copy()
+        bad = rng.random(ranges.size) < 0.3
+        ranges[bad] = rng.choice([np.nan, -np.inf, -1.0, 0.01, 1e9], size=int(bad.sum()))
+        if k % 7 == 0:  # some scans from a lower-resolution driver: a different beam count
+            scan = Scan(scan.stamp, scan.angles[::2], ranges[::2], scan.range_min, scan.range_max)
+        else:
+            scan = Scan(scan.stamp, scan.angles, ranges, scan.range_min, scan.range_max)
+        localizer.on_odometry(run.stamps[k], run.odometry[k])
+        estimate = localizer.on_scan(scan)
+        if estimate is not None:
+            # max_beams of the valid hits (never a NaN, negative, too short or no-return reading)
+            assert estimate.details["beams"] == min(60, int(scan.hit_mask.sum()))
+            corrupted.append((k, estimate))
+    errors = _errors(corrupted, run)
+    assert len(corrupted) > 40 and errors[:, 0].max() < 0.25
+
+
+def test_a_scan_without_valid_beams_is_skipped_and_backward_odometry_ignored(office: GridMap, run: Drive) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))
+    scan = run.scans[0]
+    empty = Scan(0.0, scan.angles, np.full(scan.beam_count, np.nan), scan.range_min, scan.range_max)
+    assert localizer.on_scan(empty) is None
+    assert localizer.counters.skipped_scans == 1
+    beyond = Scan(0.0, scan.angles, np.full(scan.beam_count, np.inf), scan.range_min, scan.range_max)
+    assert localizer.on_scan(beyond) is None  # no hit: nothing for the likelihood field
+    assert localizer.on_scan(scan) is not None  # the skipped scans did not use up the forced update
+    localizer.on_odometry(5.0, np.array([1.0, 0.0, 0.0]))
+    localizer.on_odometry(4.0, np.array([9.0, 9.0, 0.0]))  # older: ignored
+    localizer.on_odometry(6.0, np.array([np.nan, 0.0, 0.0]))  # non-finite: ignored
+    assert localizer.counters.ignored_odometry == 2
+    assert np.allclose(localizer._odometry_at(10.0), [1.0, 0.0, 0.0])
+
+
+def test_settings_refuse_bad_values_by_name() -> None:
+    with pytest.raises(ValueError, match="min_particles"):
+        MclSettings(min_particles=3000, max_particles=2000)
+    with pytest.raises(ValueError, match="likelihood_field_prob"):
+        MclSettings(laser_model_type="likelihood_field_prob")
+    with pytest.raises(ValueError, match="robot_model_type"):
+        MclSettings(robot_model_type="ackermann")
+    with pytest.raises(ValueError, match="sigma_hit"):
+        MclSettings(sigma_hit=0.0)
+    with pytest.raises(ValueError, match="alpha3"):
+        MclSettings(alpha3=float("nan"))
+    with pytest.raises(ValueError, match="recovery_alpha_fast"):
+        MclSettings(recovery_alpha_fast=1.5)
+    assert MclSettings(robot_model_type="nav2_amcl::OmniMotionModel").omnidirectional
+
+
+@pytest.mark.parametrize("options", [{"laser_model_type": "beam"}, {"robot_model_type": "omnidirectional"}])
+def test_the_beam_model_and_the_omnidirectional_model_track_too(office: GridMap, run: Drive, options: dict) -> None:
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, **options), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, 0.05**2]))
+    errors = _errors(_replay(localizer, run, stop=250), run)
+    assert errors[:, 0].max() < 0.3 and np.sqrt(np.mean(errors[:, 0] ** 2)) < 0.1
+
+
+# -- sensor models ------------------------------------------------------------------------------
+def _wall_map() -> GridMap:
+    """4 m x 2 m at 0.1 m, one wall filling the column of cells at x in [3.0, 3.1)."""
+    data = np.zeros((20, 40), dtype=np.int8)
+    data[:, 30] = 100
+    return GridMap(data, 0.1, (0.0, 0.0))
+
+
+def test_the_likelihood_field_peaks_at_the_true_pose_and_floors_off_the_map() -> None:
+    model = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0)
+    angles, ranges = np.array([0.0]), np.array([2.05])
+    # from x = 1.0 a 2.05 m beam ends at x = 3.05, inside the wall cell: d = 0, p = z_hit + z_rand / 10
+    at_wall = model.log_likelihood(np.array([[1.0, 1.0, 0.0]]), angles, ranges, max_range=10.0)
+    assert at_wall[0] == pytest.approx(math.log(0.5 + 0.05), abs=1e-6)
+    # 0.3 m short of the wall: d = 0.3 (cell centre to cell centre), p = 0.5 exp(-0.09 / 0.08) + 0.05
+    short = model.log_likelihood(np.array([[0.7, 1.0, 0.0]]), angles, ranges, max_range=10.0)
+    assert short[0] == pytest.approx(math.log(0.5 * math.exp(-0.09 / 0.08) + 0.05), abs=1e-3)
+    # beyond the map: the floor, z_hit exp(-max_distance^2 / 2 sigma^2) + z_rand / max_range
+    off = model.log_likelihood(np.array([[1.0, 1.0, math.pi / 2]]), angles, ranges, max_range=10.0)
+    assert off[0] == pytest.approx(model.floor_log_likelihood(10.0))
+    assert off[0] == pytest.approx(math.log(0.5 * math.exp(-4.0 / 0.08) + 0.05))
+
+
+def test_the_beam_model_prefers_the_pose_whose_rays_match() -> None:
+    model = BeamModel(_wall_map(), z_hit=0.5, z_short=0.05, z_max=0.05, z_rand=0.5, sigma_hit=0.2, lambda_short=0.1)
+    angles = np.array([-0.2, 0.0, 0.2, math.pi])
+    ranges = np.array([2.0 / math.cos(0.2), 2.0, 2.0 / math.cos(0.2), np.inf])  # wall 2 m ahead, nothing behind
+    poses = np.array([[1.0, 1.0, 0.0], [1.5, 1.0, 0.0], [1.0, 1.0, 0.3]])
+    scores = model.log_likelihood(poses, angles, ranges, max_range=8.0)
+    assert scores[0] > scores[1] + 1.0 and scores[0] > scores[2] + 1.0
+
+
+# -- particle-set primitives --------------------------------------------------------------------
+def test_low_variance_resampling_is_exact_for_uniform_weights_and_skips_zero_weights() -> None:
+    rng = np.random.default_rng(0)
+    assert np.array_equal(np.sort(low_variance_resample(np.full(50, 0.02), 50, rng)), np.arange(50))
+    picks = low_variance_resample(np.array([0.0, 0.75, 0.0, 0.25]), 8, rng)
+    assert np.bincount(picks, minlength=4).tolist() == [0, 6, 0, 2]
+
+
+def test_kld_limit_and_count_follow_the_number_of_occupied_bins() -> None:
+    limits = kld_sample_limit(np.array([1, 2, 10, 100, 1000]), pf_err=0.05, pf_z=0.99, min_count=50, max_count=5000)
+    assert limits[0] == 50  # one bin: the minimum (nav2 would return the maximum)
+    assert np.all(np.diff(limits) >= 0) and limits[-1] == 5000
+    # k = 100: (99 / 0.1) * (1 - 2/891 + sqrt(2/891) * 0.99)^3 = 1128.65, rounded up
+    assert limits[3] == 1129
+    rng = np.random.default_rng(1)
+    tight = np.column_stack([rng.normal(2.2, 0.02, 4000), rng.normal(3.3, 0.02, 4000), rng.normal(0.05, 0.01, 4000)])
+    count, bins, stopped = kld_particle_count(tight, pf_err=0.05, pf_z=0.99, min_count=50, max_count=4000)
+    assert stopped and count == 51 and bins == 1  # one bin: stop one sample past the minimum bound, as nav2
+    spread = np.column_stack([rng.uniform(0, 20, 4000), rng.uniform(0, 20, 4000), rng.uniform(-3, 3, 4000)])
+    count, bins, _ = kld_particle_count(spread, pf_err=0.05, pf_z=0.99, min_count=50, max_count=4000)
+    assert count == 4000 and bins > 1000
+
+
+def test_clusters_separate_distant_groups_and_join_across_plus_minus_pi() -> None:
+    rng = np.random.default_rng(2)
+    near_pi = np.column_stack([rng.normal(1.0, 0.05, 200), rng.normal(1.0, 0.05, 200), np.where(rng.random(200) < 0.5, 3.1, -3.1)])
+    far = np.column_stack([rng.normal(8.0, 0.05, 100), rng.normal(5.0, 0.05, 100), rng.normal(0.0, 0.02, 100)])
+    labels, count = cluster_particles(np.vstack([near_pi, far]))
+    assert count == 2
+    assert len(set(labels[:200])) == 1 and len(set(labels[200:])) == 1 and labels[0] != labels[200]
+    mean, covariance = weighted_pose_statistics(near_pi, np.ones(200))
+    assert abs(abs(mean[2]) - math.pi) < 0.05 and covariance[2, 2] < 0.01
