@@ -1,0 +1,316 @@
+"""scan_sim: every topic over real DDS to another process, cmd_vel robustness, recorded bags.
+
+The node runs as a subprocess (``python -m robot_localization_suite.nodes.scan_sim``)
+with the loopback DDS environment conftest.py set; the test subscribes with
+its own rclpy context.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.scenario import load_scenario
+from robot_localization_suite.core.se2 import quaternion_to_yaw
+from robot_localization_suite.core.simulator import Simulator
+from robot_localization_suite.nodes import scan_sim
+from robot_localization_suite.ros.bag import read_bag
+
+ROOT = Path(__file__).resolve().parent.parent
+KIDNAP_BAGS = ("office_kidnap", "floor_kidnap", "corridor_kidnap")
+
+
+def write_world(folder: Path, *, duration: float = 8.0, camera: bool = True) -> Path:
+    """A 6 m x 4 m room with a pillar, and a scenario driving in it; returns the scenario path."""
+    data = np.zeros((80, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[30:40, 80:90] = 100  # pillar at x 4.0..4.5, y 1.5..2.0
+    GridMap(data, 0.05, (0.0, 0.0)).save(folder / "room.yaml")
+    scenario = {
+        "map": "room.yaml",
+        "seed": 3,
+        "duration": duration,
+        "start": [1.0, 1.0, 0.0],
+        "motion": {"segments": [{"v": 0.3, "w": 0.1, "duration": 4.0}, {"v": 0.0, "w": 0.5, "duration": 4.0}]},
+        "kidnappings": [{"time": 2.0, "pose": [2.0, 3.0, -1.0]}],
+        "people": [{"radius": 0.25, "speed": 0.5, "waypoints": [[1.0, 3.2], [5.0, 3.2]]}],
+        "laser": {"beams": 120, "fov_deg": 270.0, "range_max": 8.0, "rate_hz": 10.0},
+    }
+    if camera:
+        scenario["camera"] = {"hfov_deg": 60.0, "width": 32, "height": 24, "rate_hz": 5.0}
+    path = folder / "room_scenario.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path
+
+
+def start_scan_sim(*ros_args: str) -> subprocess.Popen:
+    env = dict(os.environ)  # conftest.py: loopback DDS and this run's ROS_DOMAIN_ID
+    env["RCUTILS_LOGGING_BUFFERED_STREAM"] = "0"
+    env["PYTHONUNBUFFERED"] = "1"
+    return subprocess.Popen(
+        [sys.executable, "-m", "robot_localization_suite.nodes.scan_sim", "--ros-args", *ros_args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+
+
+def stop(process: subprocess.Popen) -> str:
+    if process.poll() is None:
+        process.terminate()
+    try:
+        output, _ = process.communicate(timeout=15)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        output, _ = process.communicate()
+    return output
+
+
+class Probe:
+    """A subscriber node in its own rclpy context."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("scan_sim_probe", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.received: dict[str, list] = {}
+
+    def subscribe(self, msg_type: type, topic: str, qos) -> None:
+        self.node.create_subscription(msg_type, topic, lambda msg: self.received.setdefault(topic, []).append(msg), qos)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+            if done():
+                return True
+        return False
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture
+def probe():
+    p = Probe()
+    yield p
+    p.close()
+
+
+def test_live_scan_sim_publishes_every_topic_and_exits_at_the_end(tmp_path: Path, probe: Probe) -> None:
+    from nav_msgs.msg import OccupancyGrid, Odometry
+    from sensor_msgs.msg import Image, LaserScan
+
+    from robot_localization_suite.ros.qos import MAP_QOS, SENSOR_QOS
+
+    scenario_path = write_world(tmp_path)
+    process = start_scan_sim("-p", f"scenario:={scenario_path}")
+    try:
+        probe.subscribe(OccupancyGrid, "map", MAP_QOS)
+        for msg_type, topic in ((LaserScan, "scan"), (Odometry, "odom"), (Odometry, "ground_truth"), (Image, "camera/image_raw")):
+            probe.subscribe(msg_type, topic, SENSOR_QOS)
+        topics = ("map", "scan", "odom", "ground_truth", "camera/image_raw")
+        needed = {"map": 1, "scan": 5, "odom": 5, "ground_truth": 5, "camera/image_raw": 2}
+        ok = probe.spin_until(lambda: all(len(probe.received.get(t, [])) >= needed[t] for t in topics), timeout=40.0)
+        assert ok, f"received only {({t: len(v) for t, v in probe.received.items()})}; node output:\n{stop(process)}"
+        # The scenario lasts 8 s simulated at real time: then the node exits by itself with code 0.
+        output, _ = process.communicate(timeout=30)
+        assert process.returncode == 0, output
+    finally:
+        output = stop(process) if process.returncode is None else output
+    assert "ended at 8.0 s simulated, exiting" in output
+    assert "kidnapped at t = 2.0 s" in output
+
+    grid = probe.received["map"][0]
+    assert (grid.info.width, grid.info.height, grid.info.resolution) == (120, 80, pytest.approx(0.05))
+    assert grid.header.frame_id == "map"
+    scan = probe.received["scan"][-1]
+    assert scan.header.frame_id == "laser" and len(scan.ranges) == 120
+    assert scan.angle_min == pytest.approx(-math.radians(135.0))
+    assert scan.angle_increment == pytest.approx(math.radians(270.0) / 119)
+    assert scan.range_max == pytest.approx(8.0)
+    ranges = np.asarray(scan.ranges)
+    assert np.isfinite(ranges).mean() > 0.9 and np.all(ranges[np.isfinite(ranges)] < 8.0)
+    odom = probe.received["odom"][-1]
+    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
+    truth = probe.received["ground_truth"]
+    assert (truth[-1].header.frame_id, truth[-1].child_frame_id) == ("map", "base_link")
+    # Same stamps on ground truth and scans; ground truth stays on the free floor of the room.
+    scan_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in probe.received["scan"]}
+    truth_stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in truth}
+    assert scan_stamps & truth_stamps
+    xs = [m.pose.pose.position.x for m in truth]
+    assert all(0.3 < x < 5.7 for x in xs)
+    image = probe.received["camera/image_raw"][-1]
+    assert (image.width, image.height, image.encoding, image.header.frame_id) == (32, 24, "mono8", "camera")
+    assert len(image.data) == 32 * 24
+
+
+def test_bad_cmd_vel_is_clamped_and_logged_never_fatal(tmp_path: Path, probe: Probe) -> None:
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+
+    from robot_localization_suite.ros.qos import SENSOR_QOS
+
+    write_world(tmp_path)
+    process = start_scan_sim(
+        "-p", f"map_yaml:={tmp_path / 'room.yaml'}",
+        "-p", "start_x:=2.0", "-p", "start_y:=2.0",
+        "-p", "max_linear:=0.5", "-p", "max_angular:=1.0",
+        "-p", "beams:=60",
+    )  # fmt: skip
+    try:
+        probe.subscribe(Odometry, "ground_truth", SENSOR_QOS)
+        publisher = probe.node.create_publisher(Twist, "cmd_vel", 10)
+        assert probe.spin_until(lambda: len(probe.received.get("ground_truth", [])) >= 3, timeout=40.0), stop(process)
+        assert probe.spin_until(lambda: publisher.get_subscription_count() > 0, timeout=20.0)
+
+        def drive(linear: float, angular: float, seconds: float = 1.0) -> list[tuple[float, float]]:
+            """Send the command repeatedly; the true velocities ground_truth reports meanwhile."""
+            message = Twist()
+            message.linear.x, message.angular.z = linear, angular
+            probe.received["ground_truth"] = []
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline:
+                publisher.publish(message)
+                probe.spin_until(lambda: False, timeout=0.1)
+            return [(m.twist.twist.linear.x, m.twist.twist.angular.z) for m in probe.received["ground_truth"]]
+
+        speeds = drive(1e9, -math.inf)
+        assert (0.5, -1.0) in speeds, speeds  # clamped to max_linear, max_angular
+        assert all(abs(v) <= 0.5 and abs(w) <= 1.0 for v, w in speeds)
+        speeds = drive(math.nan, 0.3)
+        assert (0.0, 0.3) in speeds, speeds  # NaN stops the robot
+        assert all(math.isfinite(v) and math.isfinite(w) for v, w in speeds)
+        assert process.poll() is None, stop(process)
+    finally:
+        output = stop(process)
+    assert "bad cmd_vel" in output
+    assert "linear.x is NaN" in output and "angular.z -inf clamped to +-1.0" in output
+    assert "Traceback" not in output
+
+
+def test_sanitize_command() -> None:
+    assert scan_sim.sanitize_command(0.2, -0.1, 1.0, 2.0) == (0.2, -0.1, [])
+    v, w, problems = scan_sim.sanitize_command(math.nan, 1e9, 1.0, 2.0)
+    assert (v, w) == (0.0, 2.0) and len(problems) == 2
+    v, w, _ = scan_sim.sanitize_command(-math.inf, -3.0, 1.0, 2.0)
+    assert (v, w) == (-1.0, -2.0)
+
+
+# -- record mode ---------------------------------------------------------------------------------
+def test_record_writes_a_bag_that_reads_back_message_for_message(tmp_path: Path) -> None:
+    import rclpy
+
+    scenario_path = write_world(tmp_path, duration=3.0)
+    bag = tmp_path / "bag"
+    argv = ["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={scenario_path}", "-p", "seed:=5"]
+    assert scan_sim.main(argv) == 0
+    assert not rclpy.ok()  # recording needs no rclpy.init (no DDS participant)
+    assert (bag / "metadata.yaml").is_file() and list(bag.glob("*.mcap"))
+
+    messages = list(read_bag(bag))
+    expected_steps = list(Simulator(load_scenario(scenario_path), seed=5).run())
+    per_step = ["/odom", "/ground_truth", "/scan"]
+    expected_topics = ["/map"]
+    for step in expected_steps:
+        expected_topics += per_step + (["/camera/image_raw"] if step.image is not None else [])
+    assert [m.topic for m in messages] == expected_topics
+    assert len(expected_steps) == 31 and expected_topics.count("/camera/image_raw") == 16
+
+    grid = messages[0].msg
+    assert np.array_equal(np.asarray(grid.data, dtype=np.int8).reshape(80, 120), load_scenario(scenario_path).grid_map.data)
+    stream = iter(messages[1:])
+    for step in expected_steps:
+        stamp_ns = int(round(step.time * 1e9))
+        odom, truth, scan = next(stream), next(stream), next(stream)
+        for item, pose in ((odom, step.odom_pose), (truth, step.true_pose)):
+            assert item.stamp_ns == stamp_ns
+            p = item.msg.pose.pose
+            yaw = quaternion_to_yaw(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
+            assert np.allclose([p.position.x, p.position.y], pose[:2], atol=1e-12)
+            assert math.isclose(math.remainder(yaw - pose[2], 2 * math.pi), 0.0, abs_tol=1e-9)
+        assert scan.stamp_ns == stamp_ns
+        assert np.array_equal(np.asarray(scan.msg.ranges, dtype=np.float32), step.ranges)
+        if step.image is not None:
+            image = next(stream)
+            assert np.array_equal(np.frombuffer(bytes(image.msg.data), np.uint8).reshape(24, 32), step.image)
+    # The kidnapping shows in ground truth only.
+    truth = [m.msg.pose.pose.position for m in messages if m.topic == "/ground_truth"]
+    assert (truth[20].x, truth[20].y) == pytest.approx((2.0, 3.0))
+
+
+def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_world(tmp_path, camera=False)
+    data = yaml.safe_load(path.read_text())
+    data["start"] = [0.02, 1.0, 0.0]
+    path.write_text(yaml.safe_dump(data))
+    assert scan_sim.main(["scan_sim", "--record", str(tmp_path / "b"), "--ros-args", "-p", f"scenario:={path}"]) == 2
+    assert "start pose [0.020, 1.000, 0.000] lies in an obstacle" in capsys.readouterr().err
+    assert scan_sim.main(["scan_sim", "--record", str(tmp_path / "c"), "--ros-args", "-p", "speed:=fast"]) == 2
+    assert "parameter 'speed' must be of type float, got 'fast'" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_parameters_from_args_reads_params_files_and_overrides(tmp_path: Path) -> None:
+    params = scan_sim.parameters_from_args(
+        ["x", "--ros-args", "--params-file", str(ROOT / "config" / "scan_sim.yaml"), "-p", "beams:=90", "-p", "speed:=2"]
+    )
+    assert params["beams"] == 90 and params["speed"] == 2.0 and params["exit_at_end"] is True
+    with pytest.raises(Exception, match="unknown parameter 'beam'"):
+        scan_sim.parameters_from_args(["x", "--ros-args", "-p", "beam:=90"])
+    with pytest.raises(Exception, match=r"'fov_deg' must be within \[-1.0, 360.0\], got 720.0"):
+        scan_sim.parameters_from_args(["x", "--ros-args", "-p", "fov_deg:=720.0"])
+    path = write_world(tmp_path, camera=False)
+    scenario = scan_sim.build_scenario(
+        {**{s.name: s.default for s in scan_sim.PARAMS}, "scenario": str(path), "beams": 45, "range_noise_model": "uniform"}
+    )
+    assert scenario.laser.beams == 45 and scenario.laser.range_noise_model == "uniform"
+    assert scenario.laser.fov_deg == 270.0  # not overridden: the scenario's
+
+
+def test_help_lists_parameters_and_record(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        scan_sim.main(["scan_sim", "--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    assert "--record DIR" in text and "scenario (default '')" in text and "cmd_vel" in text
+
+
+# -- the committed bags -----------------------------------------------------------------------------
+@pytest.mark.parametrize("name", KIDNAP_BAGS)
+def test_committed_bags_match_their_scenarios(name: str) -> None:
+    from rosbags.rosbag2 import Reader
+
+    bag = ROOT / "bags" / name
+    size = sum(p.stat().st_size for p in bag.iterdir())
+    assert size <= 4_000_000
+    scenario = load_scenario(ROOT / "config" / "scenarios" / f"{name}.yaml")
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts == {"/map": 1, "/odom": scenario.step_count, "/ground_truth": scenario.step_count, "/scan": scenario.step_count}
+    # The first seconds are exactly what the simulator produces now.
+    simulator = Simulator(scenario)
+    scans = (m for m in read_bag(bag, ["/scan"]))
+    for _ in range(30):
+        step = simulator.step()
+        assert np.array_equal(np.asarray(next(scans).msg.ranges, dtype=np.float32), step.ranges)
