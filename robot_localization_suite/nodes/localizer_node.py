@@ -102,8 +102,17 @@ class LocalizerNode(Node):
         self.get_logger().info(f"{name} ready")
 
     def _log(self, level: str, text: str) -> None:
+        # One call site per severity: rclpy refuses a second severity from the same
+        # caller ("Logger severity cannot be changed between calls").
         logger = self.get_logger()
-        {"debug": logger.debug, "info": logger.info, "warn": logger.warning, "error": logger.error}[level](text)
+        if level == "debug":
+            logger.debug(text)
+        elif level == "info":
+            logger.info(text)
+        elif level == "warn":
+            logger.warning(text)
+        else:
+            logger.error(text)
 
     def _load_map(self, path: str) -> None:
         try:
