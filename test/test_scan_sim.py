@@ -126,12 +126,17 @@ def test_live_scan_sim_publishes_every_topic_and_exits_at_the_end(tmp_path: Path
     process = start_scan_sim("-p", f"scenario:={scenario_path}")
     try:
         probe.subscribe(OccupancyGrid, "map", MAP_QOS)
-        for msg_type, topic in ((LaserScan, "scan"), (Odometry, "odom"), (Odometry, "ground_truth"), (Image, "camera/image_raw")):
+        for msg_type, topic in (
+            (LaserScan, "scan"),
+            (Odometry, "odom"),
+            (Odometry, "ground_truth"),
+            (Image, "camera/image_raw"),
+        ):
             probe.subscribe(msg_type, topic, SENSOR_QOS)
         topics = ("map", "scan", "odom", "ground_truth", "camera/image_raw")
         needed = {"map": 1, "scan": 5, "odom": 5, "ground_truth": 5, "camera/image_raw": 2}
         ok = probe.spin_until(lambda: all(len(probe.received.get(t, [])) >= needed[t] for t in topics), timeout=40.0)
-        assert ok, f"received only {({t: len(v) for t, v in probe.received.items()})}; node output:\n{stop(process)}"
+        assert ok, f"received only { ({t: len(v) for t, v in probe.received.items()}) }; node output:\n{stop(process)}"
         # The scenario lasts 8 s simulated at real time: then the node exits by itself with code 0.
         output, _ = process.communicate(timeout=30)
         assert process.returncode == 0, output
@@ -210,22 +215,29 @@ def test_bad_cmd_vel_is_clamped_and_logged_never_fatal(tmp_path: Path, probe: Pr
 
 
 def test_sanitize_command() -> None:
-    assert scan_sim.sanitize_command(0.2, -0.1, 1.0, 2.0) == (0.2, -0.1, [])
-    v, w, problems = scan_sim.sanitize_command(math.nan, 1e9, 1.0, 2.0)
-    assert (v, w) == (0.0, 2.0) and len(problems) == 2
-    v, w, _ = scan_sim.sanitize_command(-math.inf, -3.0, 1.0, 2.0)
-    assert (v, w) == (-1.0, -2.0)
+    assert scan_sim.sanitize_command(0.2, -0.1, 1.0, 2.0) == (0.2, -0.1, [], [])
+    v, w, not_a_number, clamped = scan_sim.sanitize_command(math.nan, 1e9, 1.0, 2.0)
+    assert (v, w) == (0.0, 2.0)
+    assert not_a_number == ["linear.x is NaN (stopping)"] and clamped == ["angular.z 1000000000.0 clamped to +-2.0"]
+    v, w, _, clamped = scan_sim.sanitize_command(-math.inf, -3.0, 1.0, 2.0)
+    assert (v, w) == (-1.0, -2.0) and len(clamped) == 2
 
 
 # -- record mode ---------------------------------------------------------------------------------
-def test_record_writes_a_bag_that_reads_back_message_for_message(tmp_path: Path) -> None:
+def test_record_writes_a_bag_that_reads_back_message_for_message(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import rclpy
+
+    def no_init(*args, **kwargs):
+        raise AssertionError("recording must not start rclpy (no DDS participant)")
+
+    monkeypatch.setattr(rclpy, "init", no_init)
 
     scenario_path = write_world(tmp_path, duration=3.0)
     bag = tmp_path / "bag"
     argv = ["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={scenario_path}", "-p", "seed:=5"]
     assert scan_sim.main(argv) == 0
-    assert not rclpy.ok()  # recording needs no rclpy.init (no DDS participant)
     assert (bag / "metadata.yaml").is_file() and list(bag.glob("*.mcap"))
 
     messages = list(read_bag(bag))
@@ -238,7 +250,9 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(tmp_path: Path)
     assert len(expected_steps) == 31 and expected_topics.count("/camera/image_raw") == 16
 
     grid = messages[0].msg
-    assert np.array_equal(np.asarray(grid.data, dtype=np.int8).reshape(80, 120), load_scenario(scenario_path).grid_map.data)
+    assert np.array_equal(
+        np.asarray(grid.data, dtype=np.int8).reshape(80, 120), load_scenario(scenario_path).grid_map.data
+    )
     stream = iter(messages[1:])
     for step in expected_steps:
         stamp_ns = int(round(step.time * 1e9))
@@ -273,7 +287,16 @@ def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: p
 
 def test_parameters_from_args_reads_params_files_and_overrides(tmp_path: Path) -> None:
     params = scan_sim.parameters_from_args(
-        ["x", "--ros-args", "--params-file", str(ROOT / "config" / "scan_sim.yaml"), "-p", "beams:=90", "-p", "speed:=2"]
+        [
+            "x",
+            "--ros-args",
+            "--params-file",
+            str(ROOT / "config" / "scan_sim.yaml"),
+            "-p",
+            "beams:=90",
+            "-p",
+            "speed:=2",
+        ]
     )
     assert params["beams"] == 90 and params["speed"] == 2.0 and params["exit_at_end"] is True
     with pytest.raises(Exception, match="unknown parameter 'beam'"):
@@ -282,7 +305,12 @@ def test_parameters_from_args_reads_params_files_and_overrides(tmp_path: Path) -
         scan_sim.parameters_from_args(["x", "--ros-args", "-p", "fov_deg:=720.0"])
     path = write_world(tmp_path, camera=False)
     scenario = scan_sim.build_scenario(
-        {**{s.name: s.default for s in scan_sim.PARAMS}, "scenario": str(path), "beams": 45, "range_noise_model": "uniform"}
+        {
+            **{s.name: s.default for s in scan_sim.PARAMS},
+            "scenario": str(path),
+            "beams": 45,
+            "range_noise_model": "uniform",
+        }
     )
     assert scenario.laser.beams == 45 and scenario.laser.range_noise_model == "uniform"
     assert scenario.laser.fov_deg == 270.0  # not overridden: the scenario's
@@ -307,7 +335,12 @@ def test_committed_bags_match_their_scenarios(name: str) -> None:
     scenario = load_scenario(ROOT / "config" / "scenarios" / f"{name}.yaml")
     with Reader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    assert counts == {"/map": 1, "/odom": scenario.step_count, "/ground_truth": scenario.step_count, "/scan": scenario.step_count}
+    assert counts == {
+        "/map": 1,
+        "/odom": scenario.step_count,
+        "/ground_truth": scenario.step_count,
+        "/scan": scenario.step_count,
+    }
     # The first seconds are exactly what the simulator produces now.
     simulator = Simulator(scenario)
     scans = (m for m in read_bag(bag, ["/scan"]))

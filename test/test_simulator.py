@@ -226,9 +226,7 @@ def test_bounded_odometry_error_stays_inside_the_stated_bounds() -> None:
 def test_alpha_odometry_drifts_as_configured() -> None:
     # No random noise, only a 2 % scale error: 1 m driven reads 1.02 m.
     config = OdometryConfig(alpha1=0.0, alpha2=0.0, alpha3=0.0, alpha4=0.0, scale_error=0.02)
-    scenario = segments_scenario(
-        odometry=config, motion=MotionPlan(segments=(VelocitySegment(0.5, 0.0, 2.0),))
-    )
+    scenario = segments_scenario(odometry=config, motion=MotionPlan(segments=(VelocitySegment(0.5, 0.0, 2.0),)))
     last = list(Simulator(scenario).run())[-1]
     assert last.true_pose[0] - 1.0 == pytest.approx(1.0)
     assert last.odom_pose[0] == pytest.approx(1.02)
@@ -240,7 +238,11 @@ def test_waypoints_are_followed_rotate_then_drive(room_scenario) -> None:
     data = {
         "map": "room.yaml",
         "start": [1.0, 1.0, 0.0],
-        "motion": {"linear_speed": 0.5, "angular_speed": 1.0, "waypoints": [[3.0, 1.0], [3.0, 2.0, 3.14159], {"wait": 1.0}]},
+        "motion": {
+            "linear_speed": 0.5,
+            "angular_speed": 1.0,
+            "waypoints": [[3.0, 1.0], [3.0, 2.0, 3.14159], {"wait": 1.0}],
+        },
         "laser": {"beams": 36},
     }
     scenario = room_scenario(data)
@@ -294,10 +296,19 @@ def test_start_pose_in_an_obstacle_is_refused_with_the_pose(room_scenario) -> No
         ({"odometry": {"alpha3": -1}}, r"odometry\.alpha3 must be >= 0, got -1"),
         ({"motion": {"waypoints": [[2.0, 1.0], [9.0, 1.0]]}}, r"motion\.waypoints\[1\] \[9\.0, 1\.0\] is off the map"),
         ({"motion": {"waypoints": [[2.0, 1.0]], "segments": [{"v": 1, "w": 0, "duration": 1}]}}, "exactly one"),
-        ({"kidnappings": [{"time": 1.0, "pose": [5.0, 1.0, 0.0]}]}, r"kidnappings\[0\]\.pose .* \[5\.000, 1\.000, 0\.000\] is off the map"),
-        ({"people": [{"radius": 0.2, "speed": 1.0, "waypoints": [[1.0, 1.0], [1.0, 5.0]]}]}, r"people\[0\] walks through an obstacle"),
+        (
+            {"kidnappings": [{"time": 1.0, "pose": [5.0, 1.0, 0.0]}]},
+            r"kidnappings\[0\]\.pose .* \[5\.000, 1\.000, 0\.000\] is off the map",
+        ),
+        (
+            {"people": [{"radius": 0.2, "speed": 1.0, "waypoints": [[1.0, 1.0], [1.0, 5.0]]}]},
+            r"people\[0\] walks through an obstacle",
+        ),
         ({"laser": {"beams": 90, "colour": "red"}}, r"laser has unknown key\(s\) \['colour'\]"),
-        ({"motion": {"waypoints": [[3.9, 1.0]]}}, r"the robot path reaches \[3\.8\d\d, 1\.000, 0\.000\] at t = 5\.\d\d s, 0\.175 m from an obstacle"),
+        (
+            {"motion": {"waypoints": [[3.9, 1.0]]}},
+            r"the robot path reaches \[3\.8\d\d, 1\.000, 0\.000\] at t = 5\.\d\d s, 0\.175 m from an obstacle",
+        ),
     ],
 )
 def test_bad_scenarios_are_refused_naming_the_value(room_scenario, changes: dict, message: str) -> None:

@@ -610,9 +610,7 @@ class Scenario:
         """Raise :class:`ScenarioError` naming ``what`` and the pose unless it is free with clearance."""
         x0, x1, y0, y1 = self.grid_map.extent
         if not (x0 <= pose[0] < x1 and y0 <= pose[1] < y1):
-            raise ScenarioError(
-                f"{what} {_fmt_pose(pose)} is off the map (x {x0:.2f}..{x1:.2f}, y {y0:.2f}..{y1:.2f})"
-            )
+            raise ScenarioError(f"{what} {_fmt_pose(pose)} is off the map (x {x0:.2f}..{x1:.2f}, y {y0:.2f}..{y1:.2f})")
         clearance = self.clearance(pose)
         if clearance < 0.0:
             raise ScenarioError(f"{what} {_fmt_pose(pose)} lies in an obstacle or unknown cell of the map")
@@ -928,7 +926,9 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
     people = []
     for index, item in enumerate(_list("people", data.get("people"))):
         raw = _mapping(f"people[{index}]", item, {"radius", "speed", "waypoints", "loop"})
-        points = tuple(_point(f"people[{index}].waypoints", p) for p in _list(f"people[{index}].waypoints", raw.get("waypoints")))
+        points = tuple(
+            _point(f"people[{index}].waypoints", p) for p in _list(f"people[{index}].waypoints", raw.get("waypoints"))
+        )
         people.append(
             Person(
                 radius=_finite(f"people[{index}].radius", raw.get("radius", 0.25)),
@@ -948,9 +948,7 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
             raise ScenarioError(f"camera must be a mapping, got {data['camera']!r}")
         known = set(CameraConfig.__dataclass_fields__) - {"extra"}
         camera_raw = {k: v for k, v in data["camera"].items() if k in known}
-        extra = tuple(
-            (str(k), _finite(f"camera.{k}", v)) for k, v in sorted(data["camera"].items()) if k not in known
-        )
+        extra = tuple((str(k), _finite(f"camera.{k}", v)) for k, v in sorted(data["camera"].items()) if k not in known)
         camera = CameraConfig(
             **_dataclass_fields(CameraConfig, "camera", camera_raw, integers=("width", "height", "texture_seed")),
             extra=extra,

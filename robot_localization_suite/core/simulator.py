@@ -41,6 +41,7 @@ rotation (the robot stops at the wall), and the step reports ``blocked``.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -48,10 +49,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ScenarioError
+from .grid_map import GridMap
 from .motion import OdometryMotionModel, apply_delta, odometry_delta
 from .raycast import RayCaster
 from .scan import Scan
-from .scenario import Scenario, integrate_unicycle
+from .scenario import OdometryConfig, Scenario, integrate_unicycle
 from .se2 import angle_difference, compose, wrap_angle
 
 __all__ = ["Simulator", "SimulationStep", "ray_circle_ranges", "apply_range_noise", "OdometrySimulator"]
@@ -90,9 +92,7 @@ class SimulationStep:
     image: NDArray[np.uint8] | None = None
 
 
-def ray_circle_ranges(
-    origin: ArrayLike, directions: ArrayLike, circles: ArrayLike
-) -> NDArray[np.float64]:
+def ray_circle_ranges(origin: ArrayLike, directions: ArrayLike, circles: ArrayLike) -> NDArray[np.float64]:
     """Distance along each ray to the nearest circle, ``inf`` where none is hit.
 
     Args:
@@ -169,7 +169,7 @@ class OdometrySimulator:
         rng: random stream of the odometry.
     """
 
-    def __init__(self, config, rng: np.random.Generator) -> None:
+    def __init__(self, config: OdometryConfig, rng: np.random.Generator) -> None:
         self.config = config
         self.rng = rng
         self.pose = np.zeros(3)
@@ -187,9 +187,8 @@ class OdometrySimulator:
         if config.model == "alphas":
             origin = np.zeros(3)
             drifted = apply_delta(origin, delta.rot1, trans, rot2)
-            # Noise scaled by the true step, as OdometryMotionModel.sample does for a filter.
-            noisy = self._model.sample(origin[None, :], origin, drifted, self.rng)[0]
-            rel = noisy
+            # Noise scaled by the (drifted) step, exactly as OdometryMotionModel.sample does for a filter.
+            rel = self._model.sample(origin[None, :], origin, drifted, self.rng)[0]
         else:
             bounds = OdometryMotionModel.bounds(
                 true_previous,
@@ -261,7 +260,7 @@ class Simulator:
         return math.isfinite(end) and self.index >= int(round(end / self.period))
 
     @property
-    def grid_map(self):
+    def grid_map(self) -> GridMap:
         return self.scenario.grid_map
 
     def _make_camera(self):
@@ -278,7 +277,7 @@ class Simulator:
             raise ScenarioError(f"camera: {exc}") from exc
 
     # -- stepping ------------------------------------------------------------------------------
-    def run(self):
+    def run(self) -> Iterator[SimulationStep]:
         """Yield every step of the scenario, from step 0 to its end."""
         while not self.finished:
             yield self.step()

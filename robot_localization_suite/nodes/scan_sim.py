@@ -181,20 +181,26 @@ def build_scenario(params: dict[str, Any]) -> Scenario:
     )
 
 
-def sanitize_command(v: float, w: float, max_linear: float, max_angular: float) -> tuple[float, float, list[str]]:
-    """A safe ``(v, w)`` from a ``cmd_vel``: NaN -> 0, inf / too large -> clamped; plus what was wrong."""
-    problems = []
+def sanitize_command(
+    v: float, w: float, max_linear: float, max_angular: float
+) -> tuple[float, float, list[str], list[str]]:
+    """A safe ``(v, w)`` from a ``cmd_vel``: NaN -> 0, inf / too large -> clamped to the limits.
+
+    Returns ``(v, w, nan_problems, clamp_problems)``, the last two describing what was changed.
+    """
+    not_a_number: list[str] = []
+    clamped: list[str] = []
     out = []
     for name, value, limit in (("linear.x", v, max_linear), ("angular.z", w, max_angular)):
         value = float(value)
         if math.isnan(value):
-            problems.append(f"{name} is NaN (stopping)")
+            not_a_number.append(f"{name} is NaN (stopping)")
             value = 0.0
         elif abs(value) > limit:
-            problems.append(f"{name} {value!r} clamped to +-{limit}")
+            clamped.append(f"{name} {value!r} clamped to +-{limit}")
             value = math.copysign(limit, value)
         out.append(value)
-    return out[0], out[1], problems
+    return out[0], out[1], not_a_number, clamped
 
 
 # -- messages ------------------------------------------------------------------------------
@@ -311,9 +317,7 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
         if not ok and value is not None and not isinstance(value, (list, dict)):
             value, ok = str(value), True
     if not ok:
-        raise ScenarioError(
-            f"parameter {spec.name!r} must be of type {type(default).__name__}, got {value!r}"
-        )
+        raise ScenarioError(f"parameter {spec.name!r} must be of type {type(default).__name__}, got {value!r}")
     if not isinstance(value, (bool, str)):
         if (spec.minimum is not None and value < spec.minimum) or (spec.maximum is not None and value > spec.maximum):
             raise ScenarioError(
@@ -322,7 +326,9 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
     return value
 
 
-def parameters_from_args(argv: Sequence[str], specs: Sequence[ParamSpec] = PARAMS, node_name: str = NODE_NAME) -> dict[str, Any]:
+def parameters_from_args(
+    argv: Sequence[str], specs: Sequence[ParamSpec] = PARAMS, node_name: str = NODE_NAME
+) -> dict[str, Any]:
     """Parameter values from ``--ros-args`` (``-p name:=value``, ``--params-file FILE``) without rclpy.
 
     Later settings override earlier ones, as in ROS 2. Unknown parameter names are refused.
@@ -422,11 +428,14 @@ def _make_node(options: argparse.Namespace):
             return self.get_clock().now().nanoseconds * 1e-9
 
         def _on_cmd_vel(self, msg: Twist) -> None:
-            v, w, problems = sanitize_command(
+            v, w, not_a_number, clamped = sanitize_command(
                 msg.linear.x, msg.angular.z, self.params["max_linear"], self.params["max_angular"]
             )
-            if problems:
-                self.get_logger().warn("bad cmd_vel: " + "; ".join(problems), throttle_duration_sec=2.0)
+            # Two call sites: rclpy throttles each separately, so neither kind hides the other.
+            if not_a_number:
+                self.get_logger().warn("bad cmd_vel: " + "; ".join(not_a_number), throttle_duration_sec=2.0)
+            if clamped:
+                self.get_logger().warn("bad cmd_vel: " + "; ".join(clamped), throttle_duration_sec=2.0)
             self.command = (v, w)
             self.command_time = self._now()
 
