@@ -77,7 +77,7 @@ PARAMS = (
     ParamSpec("exit_at_end", True, "live mode: exit (code 0) when the scenario ends; false: keep publishing"),
     ParamSpec("start_x", 0.0, "cmd_vel mode: start x [m]"),
     ParamSpec("start_y", 0.0, "cmd_vel mode: start y [m]"),
-    ParamSpec("start_yaw", 0.0, "cmd_vel mode: start heading [rad]", -math.pi, math.pi),
+    ParamSpec("start_yaw", 0.0, "cmd_vel mode: start heading [rad] (wrapped to [-pi, pi))", -6.2832, 6.2832),
     ParamSpec("robot_radius", 0.2, "cmd_vel mode: robot radius kept from obstacles [m]", 0.0, 2.0),
     ParamSpec("max_linear", 1.0, "cmd_vel mode: |linear.x| limit [m/s]", 0.0, 10.0),
     ParamSpec("max_angular", 2.0, "cmd_vel mode: |angular.z| limit [rad/s]", 0.0, 20.0),
