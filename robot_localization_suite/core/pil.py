@@ -125,12 +125,18 @@ class PilSettings:
         beam_mapping: ``"nearest"`` or ``"sector_min"`` (see :mod:`.pil_matching`).
 
     Level functions (section 2.3): ``<name>_enabled``, ``<name>_alpha`` (``alpha_n``),
-    ``<name>_sigma`` (``sigma_n``, intensity units; paper: alpha 1, sigma 0.05 for Energy and pq%).
+    ``<name>_sigma`` (``sigma_n``, intensity units). The paper uses alpha 1 and sigma 0.05 for
+    Energy and pq%; the defaults here are measured: about 2.5 x the robust spread (1.48 MAD) of
+    ``I_n - E_n`` at the true tile over the Intel log (180 degrees, K = 8, R = 10 m), so that
+    equation (4) keeps the true tile for most real scans and the ranking weighs each function by
+    its reliability.
         pq_low, pq_high: ``p`` and ``q`` of pq% (paper figure 2: 0.25 and 0.75).
         low_quantile_level, high_quantile_level: the quantiles of the sorted profile.
 
     Candidates (sections 2.4, 2.7):
-        min_candidates: add best-ranked tiles until this many (0: the paper's pure filter).
+        min_candidates: add best-ranked tiles until this many (0: the paper's pure filter). 600:
+            on the real logs the true tile's rank is below 300 in 70-80 % of scans, below 1000 in
+            80-91 % (measured); 600 keeps an update near 10 ms.
         max_candidates: keep at most this many passing tiles, best-ranked first.
         window_size: side of the square search window [m] (paper section 4.2: 4 m); <= 0: whole map.
 
@@ -144,7 +150,9 @@ class PilSettings:
 
     Status:
         lost_score: best normalised score above which the estimate is LOST.
-        kidnap_score: best score inside the window above which the whole map is searched.
+        kidnap_score: best score inside the window above which the whole map is searched. Measured
+            on the real logs (global fixes, tau 0.1): correct fixes score 0.03-0.07 (median) and
+            0.1-0.2 (90th percentile), wrong ones 0.19-0.35 (median).
         ambiguity_margin: score margin of AMBIGUOUS and of the covariance's near-best set.
         ambiguity_distance: [m] and ambiguity_angle: [rad] what counts as a separate candidate.
         min_valid_fraction: sensors that must receive a valid beam.
@@ -166,29 +174,29 @@ class PilSettings:
 
     energy_enabled: bool = True
     energy_alpha: float = 1.0
-    energy_sigma: float = 0.05
+    energy_sigma: float = 0.03
     pq_enabled: bool = True
     pq_low: float = 0.25
     pq_high: float = 0.75
     pq_alpha: float = 1.0
-    pq_sigma: float = 0.05
+    pq_sigma: float = 0.08
     harmonic1_enabled: bool = True
     harmonic1_alpha: float = 1.0
-    harmonic1_sigma: float = 0.05
+    harmonic1_sigma: float = 0.025
     harmonic2_enabled: bool = True
     harmonic2_alpha: float = 1.0
-    harmonic2_sigma: float = 0.05
+    harmonic2_sigma: float = 0.02
     low_quantile_enabled: bool = True
     low_quantile_level: float = 0.1
     low_quantile_alpha: float = 1.0
-    low_quantile_sigma: float = 0.05
+    low_quantile_sigma: float = 0.06
     high_quantile_enabled: bool = True
     high_quantile_level: float = 0.9
     high_quantile_alpha: float = 1.0
-    high_quantile_sigma: float = 0.05
+    high_quantile_sigma: float = 0.02
 
-    min_candidates: int = 300
-    max_candidates: int = 3000
+    min_candidates: int = 600
+    max_candidates: int = 1000
     window_size: float = 4.0
 
     score_truncation: float = 0.1
@@ -199,7 +207,7 @@ class PilSettings:
     refine_truncation: float = 0.3
 
     lost_score: float = 0.5
-    kidnap_score: float = 0.25
+    kidnap_score: float = 0.2
     ambiguity_margin: float = 0.03
     ambiguity_distance: float = 1.0
     ambiguity_angle: float = 0.5
@@ -424,6 +432,7 @@ class PilLocalizer:
             show_progress=self.settings.show_progress,
             log=self._emit,
         )
+        self.learning.spectra  # noqa: B018 - derived once here, not in the first query
         self._caster = RayCaster(self.grid_map, max_range=self._range, unknown_blocks=self.settings.unknown_blocks)
         self._sheets_key = None
         self._sheet_features = None
@@ -532,9 +541,14 @@ class PilLocalizer:
         self._last_passes = pass_mask
         if tiles.size == 0:
             return _Search(np.zeros((0, 3)), np.zeros(0), filter_count, 0, pass_mask, tiles, 0)
-        learned = self.learning.intensities[tiles]
         correlation = correlate_profiles(
-            learned, profile, self._layout.upsampling, settings.score_truncation, settings.shift_hypotheses
+            self.learning.intensities,
+            self.learning.spectra,
+            tiles,
+            profile,
+            self._layout.upsampling,
+            settings.score_truncation,
+            settings.shift_hypotheses,
         )
         step = self.learning.angle_step
         thetas = wrap_angle(correlation.shifts * step - profile.sensor_angles[0])

@@ -58,6 +58,8 @@ __all__ = [
     "truncated_scores",
     "refine_poses",
     "BEAM_MAPPINGS",
+    "check_live_profile",
+    "sheet_sectors",
 ]
 
 BEAM_MAPPINGS = ("nearest", "sector_min")
@@ -259,78 +261,128 @@ class Correlation:
 
 
 def correlate_profiles(
-    learned: NDArray[np.float32],
+    intensities: NDArray[np.float32],
+    spectra: tuple[NDArray[np.complex64], NDArray[np.complex64]],
+    tiles: NDArray[np.int64],
     live: LiveProfile,
     upsampling: int,
     truncation: float,
     hypotheses: int = 3,
 ) -> Correlation:
-    """Circular cross-correlation by FFT of the live profile with each learned profile.
+    """Circular cross-correlation by FFT of the live profile with each candidate's learned profile.
 
     Live sensor k at heading theta looks along world direction ``theta + phi_k``;
     with learned direction index ``s + k * upsampling`` this is shift ``s`` and
-    ``theta = s * step - phi_0``.
+    ``theta = s * step - phi_0``. The masked SSD over all shifts is
+    ``sum w a^2 + irfft(conj(W) * F[I^2] - 2 conj(A) * F[I])`` with the learned
+    spectra precomputed (:attr:`PilLearning.spectra`), so one inverse FFT per
+    candidate gives every shift at once.
 
     Args:
-        learned: ``(P, J)`` learned intensities of the candidate tiles.
+        intensities: ``(T, J)`` learned intensities of all tiles.
+        spectra: ``(rfft(I), rfft(I^2))`` of all tiles.
+        tiles: ``(P,)`` the candidate tiles.
         live: the live profile (``N_s`` sensors, ``N_s * upsampling <= J``).
         upsampling: learned directions per sensor step.
         truncation: ``tau`` of the truncated score [intensity units].
-        hypotheses: local minima of the SSD rescored per candidate.
+        hypotheses: local minima of the SSD rescored per candidate with the truncated score.
     """
-    candidates, n = learned.shape
-    sensors = live.intensities.size
+    candidates = tiles.size
+    n = intensities.shape[1]
     if candidates == 0:
         return Correlation(np.zeros(0), np.zeros(0))
     weights = live.weights
-    offsets = np.arange(sensors) * upsampling
+    offsets = np.arange(live.intensities.size) * upsampling
     weighted_live = np.zeros(n)
     weighted_live[offsets] = weights * live.intensities
     mask = np.zeros(n)
     mask[offsets] = weights
-    learned64 = learned.astype(np.float64)
-    spectrum = np.fft.rfft(learned64, axis=1)
-    spectrum_sq = np.fft.rfft(learned64 * learned64, axis=1)
-    cross = np.fft.irfft(np.conj(np.fft.rfft(weighted_live))[None, :] * spectrum, n, axis=1)
-    energy = np.fft.irfft(np.conj(np.fft.rfft(mask))[None, :] * spectrum_sq, n, axis=1)
-    ssd = float(np.sum(weights * live.intensities**2)) - 2.0 * cross + energy  # (P, n), masked SSD per shift
+    live_spectrum = np.conj(np.fft.rfft(weighted_live)).astype(np.complex64)
+    mask_spectrum = np.conj(np.fft.rfft(mask)).astype(np.complex64)
+    spectrum, spectrum_sq = spectra
+    combined = spectrum_sq[tiles] * mask_spectrum[None, :]
+    combined -= np.complex64(2.0) * spectrum[tiles] * live_spectrum[None, :]
+    ssd = np.fft.irfft(combined, n, axis=1).astype(np.float32)  # masked SSD minus the constant sum w a^2
+    shifts = np.empty(candidates)
+    scores = np.empty(candidates)
+    _score_shifts(
+        ssd,
+        intensities,
+        np.ascontiguousarray(tiles, dtype=np.int64),
+        np.ascontiguousarray(live.intensities, dtype=np.float64),
+        np.ascontiguousarray(weights, dtype=np.float64),
+        int(upsampling),
+        float(truncation),
+        max(1, int(hypotheses)),
+        shifts,
+        scores,
+    )
+    return Correlation(shifts, scores)
 
-    left = np.roll(ssd, 1, axis=1)
-    right = np.roll(ssd, -1, axis=1)
-    minima = np.where((ssd <= left) & (ssd < right), ssd, np.inf)
-    keep = min(max(1, hypotheses), n)
-    if keep < n:
-        best_shifts = np.argpartition(minima, keep - 1, axis=1)[:, :keep]
-    else:
-        best_shifts = np.tile(np.arange(n), (candidates, 1))
-    is_minimum = np.isfinite(np.take_along_axis(minima, best_shifts, axis=1))
-    # Truncated squared difference at each hypothesis shift: (P, keep, N_s) gathered samples.
-    index = (best_shifts[:, :, None] + offsets[None, None, :]) % n
-    samples = np.take_along_axis(learned64, index.reshape(candidates, -1), axis=1).reshape(index.shape)
-    squared = np.minimum((samples - live.intensities[None, None, :]) ** 2, truncation**2)
-    total_weight = max(float(weights.sum()), 1.0)
-    scores = (squared * weights).sum(axis=2) / (total_weight * truncation**2)
-    scores = np.where(is_minimum, scores, np.inf)
-    # A candidate whose SSD curve is flat has no strict minimum: fall back to its global argmin.
-    flat = ~np.isfinite(scores).any(axis=1)
-    if flat.any():
-        argmin = np.argmin(ssd[flat], axis=1)
-        scores[flat, 0] = truncated_scores(
-            np.take_along_axis(learned64[flat], (argmin[:, None] + offsets[None, :]) % n, axis=1), live, truncation
-        )
-        best_shifts[flat, 0] = argmin
-    pick = np.argmin(scores, axis=1)
-    rows = np.arange(candidates)
-    shift = best_shifts[rows, pick]
-    score = scores[rows, pick]
-    # Sub-step theta: a parabola through the SSD at the shift and its two neighbours.
-    centre = ssd[rows, shift]
-    before = ssd[rows, (shift - 1) % n]
-    after = ssd[rows, (shift + 1) % n]
-    curvature = before - 2.0 * centre + after
-    with np.errstate(divide="ignore", invalid="ignore"):
-        offset = np.where(curvature > 1e-12, 0.5 * (before - after) / curvature, 0.0)
-    return Correlation(shift + np.clip(offset, -0.5, 0.5), score)
+
+@numba.njit(cache=True, nogil=True)
+def _score_shifts(ssd, intensities, tiles, live, weights, upsampling, truncation, hypotheses, out_shift, out_score):
+    """Per candidate: the best local minima of the SSD, rescored by truncated squared difference; parabolic sub-step."""
+    candidates, n = ssd.shape
+    sensors = live.shape[0]
+    tau2 = truncation * truncation
+    total = 0.0
+    for k in range(sensors):
+        total += weights[k]
+    norm = max(total, 1.0) * tau2
+    best_value = np.empty(hypotheses)
+    best_index = np.empty(hypotheses, dtype=np.int64)
+    for p in range(candidates):
+        row = ssd[p]
+        found = 0
+        for s in range(n):
+            v = row[s]
+            before = row[s - 1] if s > 0 else row[n - 1]
+            after = row[s + 1] if s + 1 < n else row[0]
+            if not (v <= before and v < after):
+                continue
+            # Keep the `hypotheses` smallest minima (insertion into a short sorted list).
+            if found < hypotheses:
+                j = found
+                found += 1
+            elif v < best_value[hypotheses - 1]:
+                j = hypotheses - 1
+            else:
+                continue
+            while j > 0 and best_value[j - 1] > v:
+                best_value[j] = best_value[j - 1]
+                best_index[j] = best_index[j - 1]
+                j -= 1
+            best_value[j] = v
+            best_index[j] = s
+        if found == 0:  # a flat curve has no strict minimum: take its first smallest value
+            best_index[0] = np.argmin(row)
+            found = 1
+        tile = tiles[p]
+        chosen = best_index[0]
+        chosen_score = np.inf
+        for h in range(found):
+            s = best_index[h]
+            acc = 0.0
+            for k in range(sensors):
+                if weights[k] == 0.0:
+                    continue
+                d = intensities[tile, (s + k * upsampling) % n] - live[k]
+                d2 = d * d
+                acc += weights[k] * (d2 if d2 < tau2 else tau2)
+            if acc < chosen_score:
+                chosen_score = acc
+                chosen = s
+        centre = row[chosen]
+        before = row[chosen - 1] if chosen > 0 else row[n - 1]
+        after = row[chosen + 1] if chosen + 1 < n else row[0]
+        curvature = before - 2.0 * centre + after
+        offset = 0.0
+        if curvature > 1e-9:
+            offset = 0.5 * (before - after) / curvature
+            offset = min(0.5, max(-0.5, offset))
+        out_shift[p] = chosen + offset
+        out_score[p] = chosen_score / norm
 
 
 def truncated_scores(learned: NDArray[np.floating], live: LiveProfile, truncation: float) -> NDArray[np.float64]:
@@ -382,10 +434,10 @@ def _refine_kernel(
         x = x0
         y = y0
         theta = poses[c, 2]
-        damping = 1e-3
         for _ in range(iterations):
-            h = np.zeros((3, 3))
-            g = np.zeros(3)
+            # Normal equations H step = -g, H symmetric 3 x 3 kept as six scalars.
+            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+            g0 = g1 = g2 = 0.0
             used = 0
             for b in range(angles.shape[0]):
                 heading = theta + angles[b]
@@ -396,35 +448,50 @@ def _refine_kernel(
                 value, d_dx, d_dy = _field_at(field, (px - origin_x) / resolution, (py - origin_y) / resolution, resolution)
                 if value >= truncation:
                     continue
-                j0 = d_dx
-                j1 = d_dy
                 j2 = ranges[b] * (-d_dx * sin_h + d_dy * cos_h)
-                jac = (j0, j1, j2)
-                for r in range(3):
-                    g[r] += jac[r] * value
-                    for q in range(3):
-                        h[r, q] += jac[r] * jac[q]
+                h00 += d_dx * d_dx
+                h01 += d_dx * d_dy
+                h02 += d_dx * j2
+                h11 += d_dy * d_dy
+                h12 += d_dy * j2
+                h22 += j2 * j2
+                g0 += d_dx * value
+                g1 += d_dy * value
+                g2 += j2 * value
                 used += 1
             if used < 3:
                 break
-            for r in range(3):
-                h[r, r] += damping * h[r, r] + 1e-9
-            step = -np.linalg.solve(h, g)
+            # Levenberg-style damping of the diagonal, then Cramer's rule.
+            h00 = h00 * 1.001 + 1e-9
+            h11 = h11 * 1.001 + 1e-9
+            h22 = h22 * 1.001 + 1e-9
+            c00 = h11 * h22 - h12 * h12
+            c01 = h02 * h12 - h01 * h22
+            c02 = h01 * h12 - h02 * h11
+            det = h00 * c00 + h01 * c01 + h02 * c02
+            if abs(det) < 1e-18:
+                break
+            c11 = h00 * h22 - h02 * h02
+            c12 = h01 * h02 - h00 * h12
+            c22 = h00 * h11 - h01 * h01
+            s0 = -(c00 * g0 + c01 * g1 + c02 * g2) / det
+            s1 = -(c01 * g0 + c11 * g1 + c12 * g2) / det
+            s2 = -(c02 * g0 + c12 * g1 + c22 * g2) / det
             # Bounded steps keep Gauss-Newton inside the basin of the candidate.
-            step_xy = math.hypot(step[0], step[1])
+            step_xy = math.hypot(s0, s1)
             if step_xy > 0.1:
-                step[0] *= 0.1 / step_xy
-                step[1] *= 0.1 / step_xy
-            if abs(step[2]) > 0.1:
-                step[2] = math.copysign(0.1, step[2])
-            x += step[0]
-            y += step[1]
-            theta += step[2]
+                s0 *= 0.1 / step_xy
+                s1 *= 0.1 / step_xy
+            if abs(s2) > 0.1:
+                s2 = math.copysign(0.1, s2)
+            x += s0
+            y += s1
+            theta += s2
             shift = math.hypot(x - x0, y - y0)
             if shift > max_shift:
                 x = x0 + (x - x0) * max_shift / shift
                 y = y0 + (y - y0) * max_shift / shift
-            if step_xy < 1e-4 and abs(step[2]) < 1e-4:
+            if step_xy < 1e-4 and abs(s2) < 1e-4:
                 break
         out[c, 0] = x
         out[c, 1] = y
