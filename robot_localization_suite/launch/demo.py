@@ -374,7 +374,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rls_demo: {exc}", file=sys.stderr)
         return 2
     finally:
+        # Stop spinning and wait for the thread before tearing rclpy down: a spinning thread left
+        # behind at exit aborts the interpreter ("terminate called without an active exception").
         executor.shutdown(timeout_sec=2.0)
+        spinner.join(timeout=5.0)
         monitor_node.node.destroy_node()
         rclpy.try_shutdown()
 
