@@ -238,6 +238,9 @@ def test_monitor_scores_estimates_against_interpolated_truth() -> None:
     assert row["median_error_m"] == pytest.approx(0.3, abs=1e-9)  # of 0.3, 0.4 and 0 m
     assert row["median_update_ms"] == pytest.approx(5.0)
     assert "ground truth: 40 poses over 3.9 s of scenario time, 1 kidnapping(s)" in monitor.summary_table()
+    # Once scan_sim's /map (stamped at its t = 0) is in, times count from there, not from the first truth received.
+    monitor.on_map_stamp(99.5)
+    assert any(line.startswith("t =    4.4 s") for line in monitor.progress_lines())
 
 
 def test_demo_runs_the_simulator_and_prints_the_summary() -> None:

@@ -70,6 +70,7 @@ class DemoMonitor:
         self.truth_stamps: list[float] = []
         self.truth_poses: list[np.ndarray] = []
         self.kidnappings: list[float] = []
+        self.time_origin: float | None = None  # the simulator's t = 0 (the stamp of its /map)
         self._lock = threading.Lock()
         self._announced_kidnaps = 0
 
@@ -84,6 +85,14 @@ class DemoMonitor:
                     self.kidnappings.append(stamp)
             self.truth_stamps.append(stamp)
             self.truth_poses.append(np.asarray(pose, dtype=np.float64))
+
+    def on_map_stamp(self, stamp: float) -> None:
+        """scan_sim stamps its map with its clock at t = 0: scenario times are counted from there."""
+        with self._lock:
+            self.time_origin = stamp
+
+    def _origin(self) -> float:
+        return self.time_origin if self.time_origin is not None else self.truth_stamps[0]
 
     def on_estimate(self, name: str, stamp: float, pose: np.ndarray) -> None:
         with self._lock:
@@ -131,8 +140,8 @@ class DemoMonitor:
         with self._lock:
             if not self.truth_stamps:
                 return ["waiting for /ground_truth ..."]
-            # Stamps are the simulator's clock; times are shown from its first ground truth.
-            start = self.truth_stamps[0]
+            # Stamps are the simulator's clock; times are shown from its start.
+            start = self._origin()
             stamp, truth = self.truth_stamps[-1], self.truth_poses[-1]
             lines = []
             while self._announced_kidnaps < len(self.kidnappings):
@@ -198,12 +207,12 @@ class MonitorNode:
     def __init__(self, monitor: DemoMonitor, print_line, period_s: float = 1.0) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
-        from nav_msgs.msg import Odometry
+        from nav_msgs.msg import OccupancyGrid, Odometry
         from rclpy.node import Node
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
         from ..ros.conversions import odometry_from_msg, pose_from_pose_msg, stamp_to_seconds
-        from ..ros.qos import RELIABLE_QOS
+        from ..ros.qos import MAP_QOS, RELIABLE_QOS
 
         self.monitor = monitor
         self.node = Node("rls_demo_monitor")
@@ -211,6 +220,9 @@ class MonitorNode:
         truth_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.node.create_subscription(
             Odometry, "/ground_truth", lambda msg: monitor.on_truth(*odometry_from_msg(msg)), truth_qos
+        )
+        self.node.create_subscription(
+            OccupancyGrid, "/map", lambda msg: monitor.on_map_stamp(stamp_to_seconds(msg.header.stamp)), MAP_QOS
         )
         for name in monitor.tracks:
             self.node.create_subscription(
