@@ -1,0 +1,428 @@
+"""Multi-hypothesis topological tracking on IMA place recognition (thesis 003, chapter 3, Code 3.1).
+
+Each update (section 3.8, Code 3.1, section 4.1.5):
+
+1. The odometry displacement since the last reset, its direction corrected by
+   the heading offset of the last vision correction, is added to the last
+   winner ``o*``; the node nearest that point is ``d0`` (3.2.1).
+2. IMA compares the image with every panorama (with zoom: best of three);
+   nodes with ``MATCH(d) > eps_M`` are destinations. If there are none, the
+   result is ``d0``, a *supposed* place: no reset, the origins stay.
+3. Otherwise ``d0`` joins as the *virtual* destination with ``MATCH = eps_M``
+   and the heading of the odometry.
+4. For every origin ``o`` and destination ``d``: ``Qa = Qo + displacement``,
+   ``phi_a = phi_o + rotation``, ``dl = |Qd - Qa|`` (3.14), ``dphi = phi_d -
+   phi_a`` (3.15); ``dl_max``, ``dphi_max`` over all pairs.
+5. Action model ``P(d|o,a) = g_l(dl) g_phi(dphi)`` (3.16-3.19), gaussians
+   with standard deviations ``dl_max`` and ``dphi_max``; prediction
+   ``P'(d) = sum_o P(d|o,a) Act(o)`` (3.22); update ``P''(d) = MATCH(d) P'(d)``
+   (3.21, 3.23); normalisation (3.24). ``d*`` has the highest activity.
+6. The odometry is "reset" (its pose recorded) and ``o* = d*``; if
+   ``MATCH(d*) > eps_phi`` the heading offset is set so that the corrected
+   odometry heading equals ``phi*`` from equation 2.2 (3.7). ``O <- D``.
+
+The algorithm runs only after the odometry moved ``min_translation`` or turned
+``min_rotation`` since its last run (section 3.8, 0.3 m / 10 degrees in 5.2),
+and on the first image after a start or a reinitialisation.
+
+Choices where the thesis is silent (written down as the house rules ask):
+
+* **Start.** Global localization (5.2.2): every node is an origin with
+  activity ``1/N``. Their heading is unknown, so ``dphi = 0`` for them; until
+  the first winner there is no ``o*`` and so no ``d0``: an image with no
+  destination then yields no estimate.
+* **Origin headings.** A normal destination keeps its IMA heading as its
+  heading when it becomes an origin; the virtual one keeps the corrected
+  odometry heading. ``dphi = 0`` for virtual origin -> virtual destination
+  (footnote 10) and for origins of unknown heading.
+* **Displacement.** ``Qa = Qo + R(delta) (p_now - p_reset)`` with ``delta``
+  the heading offset (map heading minus odometry heading): the thesis' "vector
+  connecting the two odometry positions, its direction corrected by the last
+  heading error" (4.1.5), computed with the shared SE(2) helpers.
+* **Degenerate spreads.** ``dl_max`` and ``dphi_max`` are floored at
+  ``min_sigma_l`` / ``min_sigma_phi`` (a single pair at distance 0 would
+  divide by zero); the floors cancel in the normalisation when all pairs tie.
+* **Initial pose** (``/initialpose``): one origin at the given pose with
+  activity 1 (its nearest node names it), ``o*`` there, the odometry reset and
+  the heading offset set to the given heading.
+* **Estimate.** ``pose`` is ``d*``'s node position with the corrected
+  odometry heading; the covariance is diagonal with the node spacing
+  (half the median nearest-node distance) as position sigma and 10 degrees
+  (thesis 5.1.4) as heading sigma once a heading correction happened, pi before.
+  Status: LOCALIZED when ``d*`` comes from vision, AMBIGUOUS when it is the
+  virtual destination or a supposed place, INITIALIZING before the first winner.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import LocalizationSuiteError
+from .ima import ImaSettings, PanoramaBank, PlaceMatch, TopologicalMap, to_grey
+from .localizer import Estimate, LocalizerStatus
+from .se2 import angle_difference, compose, relative, wrap_angle
+
+__all__ = ["ImaTrackerSettings", "Hypotheses", "ImaTopoLocalizer", "ImageError", "activity_update"]
+
+
+class ImageError(LocalizationSuiteError):
+    """A camera image cannot be used (wrong shape, non-finite values)."""
+
+
+@dataclass(frozen=True)
+class ImaTrackerSettings:
+    """Parameters of the tracking (thesis 4.1.1 and section 5.2).
+
+    Attributes:
+        ima: place recognition parameters (scale 72 x 58, 8 slots, CLAHE, zoom 1.1).
+        match_threshold: ``eps_M``, least ``MATCH`` of a destination; 0.5 (5.2).
+        heading_threshold: ``eps_phi >= eps_M``, least ``MATCH`` of ``d*`` to correct the heading; 0.6 (5.2).
+        min_translation: odometry translation that triggers an update [m]; 0.3 (5.2).
+        min_rotation: odometry rotation that triggers an update [rad]; 10 degrees (5.2).
+        min_sigma_l: floor of ``dl_max`` [m] (see the module notes).
+        min_sigma_phi: floor of ``dphi_max`` [rad].
+        heading_sigma: heading standard deviation reported after a correction [rad]; 10 degrees (5.1.4).
+    """
+
+    ima: ImaSettings = field(default_factory=ImaSettings)
+    match_threshold: float = 0.5
+    heading_threshold: float = 0.6
+    min_translation: float = 0.3
+    min_rotation: float = math.radians(10.0)
+    min_sigma_l: float = 0.01
+    min_sigma_phi: float = math.radians(1.0)
+    heading_sigma: float = math.radians(10.0)
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.match_threshold < 1.0:
+            raise ValueError(f"match_threshold (eps_M) must be within [0, 1), got {self.match_threshold!r}")
+        if not self.match_threshold <= self.heading_threshold <= 1.0:
+            raise ValueError(
+                f"heading_threshold (eps_phi) must be within [eps_M={self.match_threshold!r}, 1], "
+                f"got {self.heading_threshold!r}"
+            )
+        if not 0.0 <= self.min_translation < 100.0:
+            raise ValueError(f"min_translation must be within [0, 100) m, got {self.min_translation!r}")
+        if not 0.0 <= self.min_rotation <= math.pi:
+            raise ValueError(f"min_rotation must be within [0, pi] rad, got {self.min_rotation!r}")
+        if not 0.0 < self.min_sigma_l < 10.0:
+            raise ValueError(f"min_sigma_l must be within (0, 10) m, got {self.min_sigma_l!r}")
+        if not 0.0 < self.min_sigma_phi < math.pi:
+            raise ValueError(f"min_sigma_phi must be within (0, pi) rad, got {self.min_sigma_phi!r}")
+        if not 0.0 < self.heading_sigma <= math.pi:
+            raise ValueError(f"heading_sigma must be within (0, pi] rad, got {self.heading_sigma!r}")
+
+
+@dataclass
+class Hypotheses:
+    """A set of origins or destinations.
+
+    Attributes:
+        node: ``(K,)`` node index of each hypothesis.
+        xy: ``(K, 2)`` position [m] (the node's, or a given initial pose).
+        heading: ``(K,)`` heading [rad]; NaN when unknown.
+        activity: ``(K,)`` activities, summing to 1.
+        virtual: ``(K,)`` whether it is the virtual hypothesis of the odometry.
+        match: ``(K,)`` ``MATCH`` of the destination (``eps_M`` for the virtual one).
+    """
+
+    node: NDArray[np.int64]
+    xy: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    activity: NDArray[np.float64]
+    virtual: NDArray[np.bool_]
+    match: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return int(self.node.shape[0])
+
+
+def activity_update(
+    origins: Hypotheses,
+    destination_xy: NDArray[np.float64],
+    destination_heading: NDArray[np.float64],
+    destination_virtual: NDArray[np.bool_],
+    destination_match: NDArray[np.float64],
+    displacement: NDArray[np.float64],
+    rotation: float,
+    *,
+    min_sigma_l: float = 0.01,
+    min_sigma_phi: float = math.radians(1.0),
+) -> NDArray[np.float64]:
+    """Activities of the destinations: equations 3.14-3.24.
+
+    Args:
+        origins: the origins ``O`` with their activities.
+        destination_xy: ``(D, 2)`` positions ``Qd``.
+        destination_heading: ``(D,)`` headings ``phi_d`` (NaN unknown).
+        destination_virtual: ``(D,)`` which one is the virtual destination.
+        destination_match: ``(D,)`` ``MATCH(d)``, the sensor model (3.21).
+        displacement: ``(2,)`` odometry displacement in the map frame [m].
+        rotation: odometry rotation [rad].
+
+    Returns:
+        ``(D,)`` normalised activities ``Act(d)`` (3.24).
+    """
+    q_a = origins.xy + displacement[None, :]  # (O, 2)
+    phi_a = origins.heading + rotation  # (O,)
+    delta_l = np.hypot(
+        destination_xy[:, None, 0] - q_a[None, :, 0], destination_xy[:, None, 1] - q_a[None, :, 1]
+    )  # (D, O), eq. 3.14
+    delta_phi = np.asarray(angle_difference(destination_heading[:, None], phi_a[None, :]), dtype=np.float64)  # 3.15
+    unknown = np.isnan(delta_phi) | (destination_virtual[:, None] & origins.virtual[None, :])  # footnote 10
+    delta_phi = np.where(unknown, 0.0, np.abs(delta_phi))
+    sigma_l = max(float(delta_l.max(initial=0.0)), min_sigma_l)
+    sigma_phi = max(float(delta_phi.max(initial=0.0)), min_sigma_phi)
+    g_l = np.exp(-(delta_l**2) / (2.0 * sigma_l**2)) / (math.sqrt(2.0 * math.pi) * sigma_l)  # 3.16
+    g_phi = np.exp(-(delta_phi**2) / (2.0 * sigma_phi**2)) / (math.sqrt(2.0 * math.pi) * sigma_phi)  # 3.17
+    action = g_l * g_phi  # 3.18 / 3.19
+    predicted = action @ origins.activity  # 3.22
+    updated = destination_match * predicted  # 3.23
+    total = updated.sum()
+    if not np.isfinite(total) or total <= 0.0:
+        return np.full(len(updated), 1.0 / len(updated))
+    return updated / total  # 3.24
+
+
+class ImaTopoLocalizer:
+    """Camera topological localizer: IMA place recognition + multi-hypothesis tracking.
+
+    Implements :class:`~robot_localization_suite.core.localizer.CameraLocalizer`.
+
+    Args:
+        topomap: nodes and panoramas (see :func:`~robot_localization_suite.core.ima.load_topomap`).
+        settings: the method's parameters.
+    """
+
+    def __init__(self, topomap: TopologicalMap, settings: ImaTrackerSettings | None = None) -> None:
+        self.settings = settings or ImaTrackerSettings()
+        self.topomap = topomap
+        self.bank = PanoramaBank(topomap.panoramas, topomap.hfov_deg, topomap.heading_refs, self.settings.ima)
+        self.node_xy = topomap.positions
+        self.names = topomap.names
+        spacing = self._node_spacing(self.node_xy)
+        self._position_sigma = 0.5 * spacing
+        self._odom = np.zeros(3)
+        self._has_odom = False
+        self.reinitialize()
+
+    @staticmethod
+    def _node_spacing(xy: NDArray[np.float64]) -> float:
+        if len(xy) < 2:
+            return 1.0
+        distance = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        np.fill_diagonal(distance, np.inf)
+        return float(np.median(distance.min(axis=1)))
+
+    # -- CameraLocalizer -------------------------------------------------------------------
+    def reinitialize(self) -> None:
+        """Global localization: every node an origin with activity 1/N, no winner, no heading correction."""
+        count = len(self.node_xy)
+        self.origins = Hypotheses(
+            node=np.arange(count),
+            xy=self.node_xy.copy(),
+            heading=np.full(count, np.nan),
+            activity=np.full(count, 1.0 / count),
+            virtual=np.zeros(count, dtype=bool),
+            match=np.zeros(count),
+        )
+        self._winner_xy: NDArray[np.float64] | None = None
+        self._winner_node = -1
+        self._reset_odom = self._odom.copy()
+        self._last_run_odom: NDArray[np.float64] | None = None
+        self._heading_offset = 0.0
+        self._heading_known = False
+        self._force_update = True
+
+    def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike) -> None:
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        node = int(np.argmin(np.hypot(self.node_xy[:, 0] - pose[0], self.node_xy[:, 1] - pose[1])))
+        self.origins = Hypotheses(
+            node=np.array([node]),
+            xy=pose[None, :2].copy(),
+            heading=np.array([pose[2]]),
+            activity=np.ones(1),
+            virtual=np.zeros(1, dtype=bool),
+            match=np.ones(1),
+        )
+        self._winner_xy = pose[:2].copy()
+        self._winner_node = node
+        self._reset_odom = self._odom.copy()
+        self._heading_offset = float(angle_difference(pose[2], self._odom[2]))
+        self._heading_known = True
+        self._force_update = True
+
+    def request_nomotion_update(self) -> None:
+        self._force_update = True
+
+    def on_odometry(self, stamp: float, odom_pose: ArrayLike) -> None:
+        pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(pose)):
+            return
+        if not self._has_odom:
+            # The first odometry defines where the motion since start is measured from.
+            self._reset_odom = pose.copy()
+            self._has_odom = True
+        self._odom = pose
+
+    def on_image(self, stamp: float, image: ArrayLike) -> Estimate | None:
+        """Run Code 3.1 when the robot moved enough since the last run; otherwise return None."""
+        try:
+            grey = to_grey(image)
+        except ValueError as exc:
+            raise ImageError(str(exc)) from exc
+        if not self._should_update():
+            return None
+        self._force_update = False
+        self._last_run_odom = self._odom.copy()
+        return self._update(float(stamp), grey)
+
+    # -- Code 3.1 --------------------------------------------------------------------------
+    def _should_update(self) -> bool:
+        if self._force_update or self._last_run_odom is None:
+            return True
+        moved = relative(self._last_run_odom, self._odom)
+        return bool(
+            math.hypot(moved[0], moved[1]) >= self.settings.min_translation
+            or abs(moved[2]) >= self.settings.min_rotation
+        )
+
+    def _odometry_action(self) -> tuple[NDArray[np.float64], float, float]:
+        """Displacement ``(2,)`` in the map frame, rotation, and the corrected heading now."""
+        motion = relative(self._reset_odom, self._odom)  # in the frame of the odometry at reset
+        reset_heading = self._reset_odom[2] + self._heading_offset  # map heading at reset
+        moved = compose(np.array([0.0, 0.0, reset_heading]), motion)
+        heading_now = float(wrap_angle(self._odom[2] + self._heading_offset))
+        return moved[:2], float(motion[2]), heading_now
+
+    def _update(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
+        s = self.settings
+        displacement, rotation, heading_now = self._odometry_action()
+        guess_node = -1
+        if self._winner_xy is not None:
+            guess = self._winner_xy + displacement
+            guess_node = int(np.argmin(np.hypot(self.node_xy[:, 0] - guess[0], self.node_xy[:, 1] - guess[1])))
+
+        place = self.bank.match(image)
+        seen = np.nonzero(place.match > s.match_threshold)[0]
+        if seen.size == 0:
+            if guess_node < 0:
+                return None
+            return self._supposed(stamp, guess_node, heading_now, place)
+
+        nodes = list(seen)
+        xy = [self.node_xy[n] for n in seen]
+        headings = list(place.heading[seen])
+        virtual = [False] * len(seen)
+        matches = list(place.match[seen])
+        if guess_node >= 0:
+            nodes.append(guess_node)
+            xy.append(self.node_xy[guess_node])
+            headings.append(heading_now)
+            virtual.append(True)
+            matches.append(s.match_threshold)
+        destination_xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        destination_heading = np.asarray(headings, dtype=np.float64)
+        destination_virtual = np.asarray(virtual, dtype=bool)
+        destination_match = np.asarray(matches, dtype=np.float64)
+        activity = activity_update(
+            self.origins,
+            destination_xy,
+            destination_heading,
+            destination_virtual,
+            destination_match,
+            displacement,
+            rotation,
+            min_sigma_l=s.min_sigma_l,
+            min_sigma_phi=s.min_sigma_phi,
+        )
+        best = int(np.argmax(activity))
+        winner_node = int(nodes[best])
+        corrected = bool(destination_match[best] > s.heading_threshold)
+        if corrected:
+            self._heading_offset = float(angle_difference(destination_heading[best], self._odom[2]))
+            self._heading_known = True
+        heading = float(wrap_angle(self._odom[2] + self._heading_offset))
+        # Reset the odometry to the winner; the destinations become the origins (O <- D).
+        self._reset_odom = self._odom.copy()
+        self._winner_xy = destination_xy[best].copy()
+        self._winner_node = winner_node
+        self.origins = Hypotheses(
+            node=np.asarray(nodes, dtype=np.int64),
+            xy=destination_xy,
+            heading=destination_heading,
+            activity=activity,
+            virtual=destination_virtual,
+            match=destination_match,
+        )
+        order = np.argsort(-activity, kind="stable")
+        candidates = np.column_stack([destination_xy, np.where(np.isnan(destination_heading), heading, destination_heading)])
+        kind = "virtual" if destination_virtual[best] else "destination"
+        return self._estimate(
+            stamp,
+            winner_node,
+            heading,
+            LocalizerStatus.AMBIGUOUS if destination_virtual[best] else LocalizerStatus.LOCALIZED,
+            candidates[order],
+            activity[order],
+            place,
+            kind=kind,
+            corrected=corrected,
+            match=float(destination_match[best]),
+            activity=float(activity[best]),
+            destinations=int(len(seen)),
+        )
+
+    def _supposed(self, stamp: float, node: int, heading: float, place: PlaceMatch) -> Estimate:
+        """No destination: the place nearest the odometry guess, nothing reset (Code 3.1, footnote 21)."""
+        candidate = np.array([[*self.node_xy[node], heading]])
+        return self._estimate(
+            stamp,
+            node,
+            heading,
+            LocalizerStatus.AMBIGUOUS,
+            candidate,
+            np.ones(1),
+            place,
+            kind="supposed",
+            corrected=False,
+            match=float("nan"),
+            activity=float("nan"),
+            destinations=0,
+        )
+
+    def _estimate(
+        self,
+        stamp: float,
+        node: int,
+        heading: float,
+        status: LocalizerStatus,
+        candidates: NDArray[np.float64],
+        weights: NDArray[np.float64],
+        place: PlaceMatch,
+        **details: object,
+    ) -> Estimate:
+        heading_sigma = self.settings.heading_sigma if self._heading_known else math.pi
+        covariance = np.diag([self._position_sigma**2, self._position_sigma**2, heading_sigma**2])
+        return Estimate(
+            stamp=stamp,
+            pose=np.array([self.node_xy[node, 0], self.node_xy[node, 1], heading]),
+            covariance=covariance,
+            status=status,
+            candidates=candidates,
+            candidate_weights=weights,
+            details={
+                "place": self.names[node],
+                "place_index": node,
+                "place_xy": self.node_xy[node].copy(),
+                "node_xy": self.node_xy,
+                "heading_corrected": details.pop("corrected"),
+                "hypotheses": int(len(candidates)),
+                "matches": place.match.copy(),
+                **details,
+            },
+        )
