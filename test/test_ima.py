@@ -1,0 +1,389 @@
+"""IMA place recognition and multi-hypothesis tracking (thesis 003, chapters 2-3, appendix A)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from robot_localization_suite.core.camera import CameraRenderer
+from robot_localization_suite.core.errors import MapError
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.ima import (
+    ImaSettings,
+    PanoramaBank,
+    TopologicalMap,
+    TopoNode,
+    best_matching,
+    build_panorama,
+    heading_from_col,
+    ima,
+    load_topomap,
+    match_slots,
+    panorama_width,
+    save_topomap,
+    slot_values,
+)
+from robot_localization_suite.core.ima_tracking import (
+    Hypotheses,
+    ImageError,
+    ImaTopoLocalizer,
+    ImaTrackerSettings,
+    activity_update,
+)
+from robot_localization_suite.core.se2 import angle_difference
+from robot_localization_suite.tools.build_topomap import snapshot_turns
+
+HFOV = 60.0
+PLACES = {"WEST": (1.5, 2.0), "MIDDLE": (3.5, 2.0), "EAST": (5.5, 3.0)}
+
+
+def _world() -> GridMap:
+    """A 7 m x 5 m room at 5 cm with two boxes, so the three places see different scenes."""
+    data = np.zeros((100, 140), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[60:80, 40:60] = 100  # box x 2-3, y 3-4
+    data[10:24, 96:110] = 100  # box x 4.8-5.5, y 0.5-1.2
+    return GridMap(data, 0.05, (0.0, 0.0))
+
+
+@pytest.fixture(scope="module")
+def camera() -> CameraRenderer:
+    return CameraRenderer(_world(), width=160, height=120, texture_seed=7, lighting_variation=0.2)
+
+
+@pytest.fixture(scope="module")
+def true_panoramas(camera: CameraRenderer) -> list[np.ndarray]:
+    """Ground-truth cylindrical panoramas of the places (column 0 looks at heading 0 + hfov/2)."""
+    width = panorama_width(160, HFOV)
+    return [camera.render_panorama(np.array([x, y, 0.0]), width) for x, y in PLACES.values()]
+
+
+@pytest.fixture(scope="module")
+def bank(true_panoramas: list[np.ndarray]) -> PanoramaBank:
+    return PanoramaBank(true_panoramas, HFOV, 0.0, ImaSettings())
+
+
+def _topomap(true_panoramas: list[np.ndarray]) -> TopologicalMap:
+    nodes = [TopoNode(name, x, y, f"{name}.png", 0.0) for name, (x, y) in PLACES.items()]
+    return TopologicalMap(nodes, HFOV, list(true_panoramas))
+
+
+# -- NCC and IMA ---------------------------------------------------------------------
+def test_ncc_is_cv2_match_template_mapped_to_unit_interval() -> None:
+    rng = np.random.default_rng(0)
+    panorama = cv2.GaussianBlur(rng.uniform(0, 255, (58, 300)).astype(np.float32), (5, 5), 1.5)
+    image = panorama[:, 40:112] + rng.normal(0, 8, (58, 72)).astype(np.float32)
+    values = slot_values(image, panorama, 8)
+    for n in range(8):
+        reference = cv2.matchTemplate(panorama, np.ascontiguousarray(image[:, 9 * n : 9 * n + 9]), cv2.TM_CCOEFF_NORMED)[0]
+        assert np.allclose(values[n, : reference.size], (reference + 1.0) / 2.0, atol=1e-4)  # equation A.4
+    assert np.allclose(slot_values(image, panorama, 8, backend="opencv"), values, atol=1e-4)
+
+
+def test_an_image_cut_from_a_panorama_matches_near_one_at_its_column_across_the_wrap(bank: PanoramaBank) -> None:
+    panorama = bank.panoramas[0]
+    width = panorama.shape[1]
+    for col in (17, 200, width - 30):  # the last one runs past the right edge and wraps to the left
+        cut = np.take(panorama, np.arange(col, col + 72), axis=1, mode="wrap")
+        result = ima(cut, panorama, 8)
+        assert result.col == col
+        assert result.match > 0.99
+    other = ima(np.take(bank.panoramas[1], np.arange(100, 172), axis=1, mode="wrap"), panorama, 8)
+    assert other.match < 0.6  # a view of another place does not match
+
+
+def test_code_2_1_keeps_the_best_slot_and_code_2_2_finds_the_ordered_sequence() -> None:
+    # 3 slots of width 2 over a 10-column reference; slot n matches best at column 2 + 2 (n - 1).
+    values = np.full((3, 10), 0.55, dtype=np.float32)
+    values[0, 2], values[1, 4], values[2, 6] = 0.9, 0.8, 0.7
+    values[1, 8] = 0.95  # slot 2 also matches well out of order: the mask ignores it
+    match_slot, match_val = match_slots(values)
+    assert match_slot.tolist() == [1, 1, 1, 1, 2, 1, 3, 1, 2, 1]  # ties (0.55) keep slot 1
+    best, col = best_matching(match_slot, match_val, 3, 2)
+    assert int(col) == 2
+    assert float(best) == pytest.approx((0.9 + 0.8 + 0.7) / 3)
+
+
+def test_code_2_3_adds_the_mean_of_the_previous_slots_over_black_zones() -> None:
+    # A black zone (value exactly 0.5) after two matched slots: slots 3 and 4 add the running mean.
+    match_slot = np.array([1, 1, 2, 1, 1, 1, 1, 1])
+    match_val = np.array([0.5, 0.8, 0.6, 0.5, 0.5, 0.5, 0.5, 0.5], dtype=np.float32)
+    plain, _ = best_matching(match_slot, match_val, 4, 1)
+    variant, col = best_matching(match_slot, match_val, 4, 1, panorama_variant=True)
+    assert int(col) == 1
+    # SUM: 0.8, 1.4, 1.4 + 1.4/2 = 2.1, 2.1 + 2.1/3 = 2.8 -> MAX = 2.8 / 4
+    assert float(variant) == pytest.approx(0.7)
+    assert float(plain) == pytest.approx((0.8 + 0.6) / 4)
+
+
+def test_a_black_or_saturated_image_is_ncc_one_half_everywhere(bank: PanoramaBank) -> None:
+    for level in (0, 255):
+        image = np.full((58, 72), level, dtype=np.float32)
+        values = slot_values(image, bank.panoramas[0], 8)
+        assert np.all(values == 0.5)
+        match_slot, match_val = match_slots(values)
+        best, _ = best_matching(match_slot, match_val, 8, 9)
+        assert float(best) == pytest.approx(0.5 / 8)
+        assert np.all(bank.match(np.full((120, 160), level, dtype=np.uint8)).match < 0.5)
+
+
+def test_occluding_columns_lower_the_match_but_the_right_panorama_still_wins(camera: CameraRenderer, bank: PanoramaBank) -> None:
+    x, y = PLACES["MIDDLE"]
+    pose = np.array([x, y, 0.4])
+    # a person 2 m away in view covers ~15 of the 60 degrees: a quarter of the image (thesis 5.1.1)
+    person = np.array([[x + 2.0 * math.cos(0.5), y + 2.0 * math.sin(0.5), 0.25]])
+    clear = bank.match(camera.render(pose))
+    occluded = bank.match(camera.render(pose, person))
+    middle = list(PLACES).index("MIDDLE")
+    assert occluded.match[middle] < clear.match[middle] - 0.05
+    assert int(np.argmax(occluded.match)) == middle
+    assert occluded.match[middle] > 0.5  # still a destination (eps_M = 0.5)
+
+
+def test_heading_from_the_panorama_column_is_equation_2_2(bank: PanoramaBank, camera: CameraRenderer) -> None:
+    width = bank.width
+    # For an unzoomed panorama and Wnew a multiple of Ns: heading = heading_ref - 2 pi COL / Wref.
+    assert heading_from_col(width // 4, width, 72, 8, HFOV, 0.3) == pytest.approx(0.3 - math.pi / 2)
+    for name, (x, y) in PLACES.items():
+        for yaw in (-2.5, -0.7, 0.0, 1.2, 2.9):
+            image = camera.render(np.array([x, y, yaw]), None, np.random.default_rng(3))
+            result = bank.match(image)
+            index = list(PLACES).index(name)
+            assert int(np.argmax(result.match)) == index
+            assert abs(math.degrees(angle_difference(result.heading[index], yaw))) < 3.0
+
+
+def test_digital_zoom_extends_the_recognised_area(camera: CameraRenderer, true_panoramas: list[np.ndarray]) -> None:
+    zoom_on = PanoramaBank(true_panoramas, HFOV, 0.0, ImaSettings(zoom=1.1))
+    zoom_off = PanoramaBank(true_panoramas, HFOV, 0.0, ImaSettings(zoom=1.0))
+    index = list(PLACES).index("WEST")
+    x, y = PLACES["WEST"]
+    gains, chosen = [], []
+    for yaw in (-0.3, 0.0, 0.3):
+        for step in (0.25, -0.25):  # moved towards / away from the scene it looks at
+            pose = np.array([x + step * math.cos(yaw), y + step * math.sin(yaw), yaw])
+            image = camera.render(pose)
+            on, off = zoom_on.match(image), zoom_off.match(image)
+            gains.append(on.match[index] - off.match[index])
+            chosen.append(int(on.comparison[index]))
+    assert min(gains) >= 0.0  # the best of three is never below the plain comparison
+    assert np.mean(gains) > 0.03
+    assert {1, 2} <= set(chosen)  # zoomed image when moved forward, zoomed panorama when moved back
+
+
+def test_a_panorama_rebuilt_from_imprecise_snapshots_is_within_two_percent(camera: CameraRenderer) -> None:
+    settings = ImaSettings(width=144, height=116, slots=15, zoom=1.0)
+    rng = np.random.default_rng(11)
+    for x, y in (PLACES["WEST"], PLACES["EAST"]):
+        turns = snapshot_turns(40.0, 10.0, rng)  # 40 +- 10 degree steps, clockwise
+        steps = np.degrees(np.diff(turns))
+        assert steps.min() < 36.0 and steps.max() > 44.0  # the steps really are imprecise
+        snapshots = [camera.render(np.array([x, y, -turn]), None, rng) for turn in turns]
+        built = build_panorama(snapshots, HFOV, settings)
+        width = built.panorama.shape[1]
+        assert width == panorama_width(144, HFOV)
+        truth = turns / (2.0 * np.pi) * width
+        error = (built.columns - truth + 0.5 * width) % width - 0.5 * width
+        assert np.abs(error).max() <= 0.02 * width
+        # the mosaic itself lines up with the true panorama: circular shift of best correlation
+        true = cv2.resize(camera.render_panorama(np.array([x, y, 0.0]), 960), (width, 116), interpolation=cv2.INTER_AREA)
+        rows = slice(20, 96)
+        a = built.panorama[rows].astype(float).mean(axis=0)
+        b = true[rows].astype(float).mean(axis=0)
+        a, b = a - a.mean(), b - b.mean()
+        correlation = np.real(np.fft.ifft(np.fft.fft(a) * np.conj(np.fft.fft(b))))
+        shift = int(np.argmax(correlation))
+        assert min(shift, width - shift) <= 0.02 * width
+
+
+# -- the topological map file ---------------------------------------------------------
+def test_topomap_round_trip_and_a_missing_panorama_is_named(tmp_path: Path, true_panoramas: list[np.ndarray]) -> None:
+    path = save_topomap(_topomap(true_panoramas), tmp_path / "map" / "topomap.yaml")
+    loaded = load_topomap(path)
+    assert loaded.names == list(PLACES)
+    assert np.allclose(loaded.positions, np.array(list(PLACES.values())))
+    assert np.array_equal(loaded.panoramas[1], true_panoramas[1])
+    (tmp_path / "map" / "MIDDLE.png").unlink()
+    with pytest.raises(MapError, match=r"MIDDLE.*panorama file .*MIDDLE\.png.* does not exist"):
+        load_topomap(path)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda meta: meta.pop("hfov_deg"), "hfov_deg"),
+        (lambda meta: meta["nodes"][0].pop("x"), "field 'x'"),
+        (lambda meta: meta["nodes"][1].update(name="WEST"), "appears twice"),
+        (lambda meta: meta["nodes"][2].update(y=float("nan")), "finite"),
+        (lambda meta: meta.update(nodes=[]), "non-empty"),
+    ],
+)
+def test_a_bad_topomap_file_is_refused_naming_the_field(tmp_path: Path, true_panoramas: list[np.ndarray], edit, message: str) -> None:
+    path = save_topomap(_topomap(true_panoramas), tmp_path / "topomap.yaml")
+    meta = yaml.safe_load(path.read_text())
+    edit(meta)
+    path.write_text(yaml.safe_dump(meta))
+    with pytest.raises(MapError, match=message):
+        load_topomap(path)
+
+
+# -- activities (section 3.6) -------------------------------------------------------------
+def _origins(xy, heading, activity, virtual=None) -> Hypotheses:
+    count = len(activity)
+    return Hypotheses(
+        node=np.arange(count),
+        xy=np.asarray(xy, dtype=float),
+        heading=np.asarray(heading, dtype=float),
+        activity=np.asarray(activity, dtype=float),
+        virtual=np.zeros(count, bool) if virtual is None else np.asarray(virtual),
+        match=np.full(count, 0.7),
+    )
+
+
+def test_activity_update_case_1_origins_activity_decides() -> None:
+    # 3.6.1: o1 -> d1 and o2 -> d2 are mirror images; equal matches; Act(o1) > Act(o2) -> d1.
+    origins = _origins([[0.0, 1.0], [0.0, -1.0]], [0.0, 0.0], [0.7, 0.3])
+    destinations = np.array([[1.0, 1.0], [1.0, -1.0]])
+    act = activity_update(origins, destinations, np.zeros(2), np.zeros(2, bool), np.array([0.6, 0.6]), np.array([1.0, 0.0]), 0.0)
+    assert act[0] > act[1]
+    assert act.sum() == pytest.approx(1.0)
+
+
+def test_activity_update_case_2_distance_decides() -> None:
+    # 3.6.2: one origin; d1 at the odometry position, d2 farther; equal matches and headings.
+    origins = _origins([[0.0, 0.0]], [0.0], [1.0])
+    destinations = np.array([[1.0, 0.0], [1.0, 1.5]])
+    act = activity_update(origins, destinations, np.zeros(2), np.zeros(2, bool), np.array([0.6, 0.6]), np.array([1.0, 0.0]), 0.0)
+    assert act[0] > act[1]
+    # equations 3.16-3.24 by hand: sigma_l = dl_max = 1.5, dphi = 0 everywhere
+    g = np.exp(-np.array([0.0, 1.5]) ** 2 / (2 * 1.5**2))
+    assert act == pytest.approx(g / g.sum())
+
+
+def test_activity_update_case_3_heading_decides() -> None:
+    # 3.6.3: same distance and match; d2's heading disagrees with the odometry's.
+    origins = _origins([[0.0, 0.0]], [0.2], [1.0])
+    destinations = np.array([[1.0, 0.5], [1.0, -0.5]])
+    act = activity_update(
+        origins, destinations, np.array([0.3, 1.3]), np.zeros(2, bool), np.array([0.6, 0.6]), np.array([1.0, 0.0]), 0.1
+    )
+    assert act[0] > act[1]
+    g = np.exp(-np.array([0.0, 1.0]) ** 2 / 2.0)  # dphi = 0 and 1 rad, sigma_phi = 1 rad
+    assert act == pytest.approx(g / g.sum())
+
+
+def test_activity_update_case_4_observation_decides() -> None:
+    # 3.6.4: everything equal but MATCH(d1) > MATCH(d2): activities proportional to the matches.
+    origins = _origins([[0.0, 0.0]], [0.0], [1.0])
+    destinations = np.array([[1.0, 0.5], [1.0, -0.5]])
+    act = activity_update(origins, destinations, np.zeros(2), np.zeros(2, bool), np.array([0.8, 0.6]), np.array([1.0, 0.0]), 0.0)
+    assert act == pytest.approx([0.8 / 1.4, 0.6 / 1.4])
+
+
+def test_virtual_origin_to_virtual_destination_has_no_heading_difference() -> None:
+    # footnote 10: the virtual pair compares the odometry heading with itself
+    origins = _origins([[0.0, 0.0], [0.0, 0.0]], [0.0, 0.5], [0.5, 0.5], virtual=[False, True])
+    destinations = np.array([[1.0, 0.0], [1.0, 0.0]])
+    act = activity_update(
+        origins, destinations, np.array([0.0, 0.9]), np.array([False, True]), np.array([0.6, 0.6]), np.array([1.0, 0.0]), 0.0
+    )
+    # d1 <- o1 (dphi 0) and o2 (0.5); d2(v) <- o1 (0.9) and o2(v) (0 by footnote 10)
+    sigma = 0.9
+    g = lambda d: np.exp(-(d**2) / (2 * sigma**2))  # noqa: E731
+    expected = np.array([0.5 * g(0.0) + 0.5 * g(0.5), 0.5 * g(0.9) + 0.5 * g(0.0)])
+    assert act == pytest.approx(expected / expected.sum())
+
+
+# -- the tracker (Code 3.1) ------------------------------------------------------------------
+@pytest.fixture()
+def tracker(true_panoramas: list[np.ndarray]) -> ImaTopoLocalizer:
+    return ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings())
+
+
+def test_tracker_localizes_globally_and_updates_only_after_motion(tracker: ImaTopoLocalizer, camera: CameraRenderer) -> None:
+    rng = np.random.default_rng(1)
+    x, y = PLACES["EAST"]
+    tracker.on_odometry(0.0, np.array([10.0, -3.0, 1.0]))  # odometry has its own frame
+    estimate = tracker.on_image(0.0, camera.render(np.array([x, y, 2.0]), None, rng))
+    assert estimate is not None and estimate.details["place"] == "EAST"
+    assert np.allclose(estimate.details["place_xy"], [x, y]) and estimate.details["node_xy"].shape == (3, 2)
+    assert estimate.details["heading_corrected"] and abs(angle_difference(estimate.pose[2], 2.0)) < math.radians(3)
+    assert estimate.candidates.shape[1] == 3 and estimate.candidate_weights.sum() == pytest.approx(1.0)
+    # no motion: no update; 0.2 m: still none; 0.35 m or 12 degrees: an update
+    assert tracker.on_image(0.5, camera.render(np.array([x, y, 2.0]), None, rng)) is None
+    tracker.on_odometry(1.0, np.array([10.2, -3.0, 1.0]))
+    assert tracker.on_image(1.0, camera.render(np.array([x, y, 2.0]), None, rng)) is None
+    tracker.on_odometry(2.0, np.array([10.0, -3.0, 1.0 + math.radians(12.0)]))
+    turned = tracker.on_image(2.0, camera.render(np.array([x, y, 2.0 + math.radians(12.0)]), None, rng))
+    assert turned is not None and turned.details["place"] == "EAST"
+    assert abs(angle_difference(turned.pose[2], 2.0 + math.radians(12.0))) < math.radians(3)
+
+
+def test_a_black_image_gives_no_destination_only_the_odometry_guess(tracker: ImaTopoLocalizer, camera: CameraRenderer) -> None:
+    x, y = PLACES["WEST"]
+    tracker.on_odometry(0.0, np.zeros(3))
+    first = tracker.on_image(0.0, camera.render(np.array([x, y, 0.0])))
+    assert first is not None and first.details["place"] == "WEST"
+    # drive 2 m east blind: the odometry guess is MIDDLE (2 m east of WEST)
+    tracker.on_odometry(1.0, np.array([2.0, 0.0, 0.0]))
+    blind = tracker.on_image(1.0, np.zeros((120, 160), dtype=np.uint8))
+    assert blind is not None
+    assert blind.details["kind"] == "supposed" and blind.details["destinations"] == 0
+    assert blind.details["place"] == "MIDDLE" and not blind.details["heading_corrected"]
+    assert len(blind.candidates) == 1
+    # saturated, too; and the origins were kept (no reset without destinations)
+    tracker.on_odometry(2.0, np.array([2.0, 0.0, 0.5]))
+    assert tracker.on_image(2.0, np.full((120, 160), 255, dtype=np.uint8)).details["kind"] == "supposed"
+    assert tracker.origins.node.tolist()[0] == list(PLACES).index("WEST")
+
+
+def test_a_black_image_before_any_fix_gives_no_estimate(tracker: ImaTopoLocalizer) -> None:
+    assert tracker.on_image(0.0, np.zeros((120, 160), dtype=np.uint8)) is None
+
+
+def test_initial_pose_and_reinitialize(tracker: ImaTopoLocalizer, camera: CameraRenderer) -> None:
+    tracker.on_odometry(0.0, np.array([1.0, 1.0, 0.0]))
+    tracker.set_initial_pose(np.array([3.4, 2.1, 0.5]), np.eye(3) * 0.01)
+    assert tracker.origins.node.tolist() == [list(PLACES).index("MIDDLE")]
+    blind = tracker.on_image(0.0, np.zeros((120, 160), dtype=np.uint8))
+    assert blind.details["place"] == "MIDDLE" and blind.pose[2] == pytest.approx(0.5)
+    tracker.reinitialize()
+    assert len(tracker.origins) == 3 and np.allclose(tracker.origins.activity, 1.0 / 3.0)
+
+
+def test_images_of_any_size_or_colour_are_used_and_bad_ones_refused(tracker: ImaTopoLocalizer, camera: CameraRenderer) -> None:
+    x, y = PLACES["MIDDLE"]
+    image = camera.render(np.array([x, y, 1.0]))
+    big_colour = cv2.cvtColor(cv2.resize(image, (320, 240)), cv2.COLOR_GRAY2RGB)
+    estimate = tracker.on_image(0.0, big_colour)
+    assert estimate is not None and estimate.details["place"] == "MIDDLE"
+    with pytest.raises(ImageError, match="shape"):
+        tracker.on_image(1.0, np.zeros((10, 10, 2), dtype=np.uint8))
+    with pytest.raises(ImageError, match="non-finite"):
+        tracker.on_image(1.0, np.full((20, 20), np.nan))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"slots": 0}, "slots"),
+        ({"zoom": 0.9}, "zoom"),
+        ({"ncc_backend": "fft"}, "ncc_backend"),
+        ({"width": 3}, "width"),
+    ],
+)
+def test_bad_ima_settings_are_refused(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        ImaSettings(**kwargs)
+
+
+def test_bad_tracker_settings_are_refused() -> None:
+    with pytest.raises(ValueError, match="heading_threshold"):
+        ImaTrackerSettings(match_threshold=0.7, heading_threshold=0.6)
+    with pytest.raises(ValueError, match="min_translation"):
+        ImaTrackerSettings(min_translation=-1.0)
