@@ -26,6 +26,7 @@ setup: $(STAMP)
 
 demo: $(STAMP)
 	$(PY) -m robot_localization_suite.launch.demo $(DEMO_ARGS)
+	$(PY) -m robot_localization_suite.launch.demo --scenario lab_camera --localizers ima_topo_localizer $(DEMO_ARGS)
 
 test: $(STAMP)
 	$(PY) -m pytest -q test $(PYTEST_ARGS)

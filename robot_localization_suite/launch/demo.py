@@ -335,6 +335,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     map_yaml = Path(scenario.map_path) if scenario.map_path else config_dir() / "maps" / "office.yaml"
     end_time = scenario.end_time
+    if scenario.camera is None and args.localizers is None:
+        # Camera localizers would wait for images this scenario never publishes.
+        from ..registry import load_localizer_module
+
+        blind = [name for name in localizers if getattr(load_localizer_module(name), "USES_CAMERA", False)]
+        localizers = [name for name in localizers if name not in blind]
+        if blind:
+            print(f"[demo] left out (the scenario has no camera): {', '.join(blind)}", flush=True)
     domain_id = args.domain_id if args.domain_id is not None else _default_domain_id()
     # The monitor in this process talks DDS on loopback too, on the nodes' domain.
     os.environ.update(loopback_environment(domain_id))
