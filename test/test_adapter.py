@@ -192,3 +192,15 @@ def test_map_message_reaches_the_core_and_a_bad_one_is_refused() -> None:
     bad.info.width = 7  # no longer matches the data
     assert not adapter.on_map_msg(bad)
     assert "ignoring map message" in logs.text()
+
+
+def test_same_map_from_topic_is_not_handed_over_twice_but_a_changed_one_is():
+    adapter, core, _logs = make_adapter()
+    first = core.grid_map
+    # The same map arriving on /map (resolution passed through float32) must not trigger relearning.
+    adapter.on_map_msg(conversions.grid_map_to_msg(first, 0.0))
+    assert core.grid_map is first
+    changed = GridMap(first.data.copy(), first.resolution)
+    changed.data[5, 5] = 100
+    adapter.on_map_msg(conversions.grid_map_to_msg(changed, 1.0))
+    assert core.grid_map is not first and core.grid_map.data[5, 5] == 100

@@ -99,7 +99,7 @@ class LocalizerNode(Node):
         self.create_service(Empty, "~/request_nomotion_update", self._on_nomotion)
         if self.params["map_yaml"] and not uses_camera:
             self._load_map(self.params["map_yaml"])
-        self.get_logger().info(f"{name} ready")
+        self.get_logger().info(f"{self.get_name()} ready")
 
     def _log(self, level: str, text: str) -> None:
         # One call site per severity: rclpy refuses a second severity from the same

@@ -88,6 +88,16 @@ class AdapterOutput:
         return self._extras_builder(self.estimate) if self._extras_builder else {}
 
 
+def _same_map(a: Any, b: Any) -> bool:
+    """Same cells, resolution and origin; OccupancyGrid stores the resolution as float32, hence the tolerance."""
+    return (
+        a.data.shape == b.data.shape
+        and abs(a.resolution - b.resolution) < 1e-6
+        and np.allclose(a.origin, b.origin, atol=1e-6)
+        and np.array_equal(a.data, b.data)
+    )
+
+
 class LocalizerAdapter:
     """Bridge between ROS messages and one core localizer.
 
@@ -123,6 +133,7 @@ class LocalizerAdapter:
         self._last_scan_stamp = -np.inf
         self._last_beam_count: int | None = None
         self.has_map = False
+        self._current_map: Any = None
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
@@ -137,8 +148,13 @@ class LocalizerAdapter:
     def set_map(self, grid_map: Any) -> None:
         if not hasattr(self.localizer, "set_map"):
             return
+        if self._current_map is not None and _same_map(self._current_map, grid_map):
+            # map_yaml and the map topic often carry the same map; relearning it is wasted work.
+            self._info("debug", "map unchanged: keeping the current one")
+            return
         self._info("info", f"map {grid_map.width} x {grid_map.height} cells at {grid_map.resolution} m received")
         self.localizer.set_map(grid_map)
+        self._current_map = grid_map
         self.has_map = True
 
     def on_odom_msg(self, msg: Any) -> None:
