@@ -223,6 +223,7 @@ def feature_distances(
     live: NDArray[np.float64],
     alphas: NDArray[np.float64],
     sigmas: NDArray[np.float64],
+    term_cap: float = np.inf,
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """Equation (4) and a ranking from the same terms.
 
@@ -230,11 +231,14 @@ def feature_distances(
         features: ``(S, F, T)`` learned ``I_n`` per sheet.
         live: ``(F,)`` live ``E_n``.
         alphas, sigmas: ``(F,)``.
+        term_cap: each function's term of the ranking is capped at this, so that one
+            function thrown off by an unlearned obstacle (a person next to the robot
+            moves the near-range quantile a lot) cannot push the true tile out.
 
     Returns:
         ``passes`` ``(T,)``: ``AND_n alpha_n |I_n - E_n| < sigma_n`` on at least one sheet (the
         binary image of equation 4), and ``rank`` ``(T,)``: ``min over sheets of
-        sum_n (alpha_n |I_n - E_n| / sigma_n)^2`` (smaller is more alike).
+        sum_n min((alpha_n |I_n - E_n| / sigma_n)^2, term_cap)`` (smaller is more alike).
     """
     if features.shape[1] == 0:
         tiles = features.shape[2]
@@ -243,7 +247,10 @@ def feature_distances(
         np.float32
     )
     passes = (scaled < 1.0).all(axis=1).any(axis=0)
-    rank = np.einsum("sft,sft->st", scaled, scaled).min(axis=0)
+    squared = scaled * scaled
+    if np.isfinite(term_cap):
+        np.minimum(squared, np.float32(term_cap), out=squared)
+    rank = squared.sum(axis=1).min(axis=0)
     return passes, rank.astype(np.float64)
 
 

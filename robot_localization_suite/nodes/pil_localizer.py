@@ -63,6 +63,7 @@ PARAMS = (
     ParamSpec("high_quantile_level", _DEFAULTS.high_quantile_level, "level of high_quantile (0..1)", 0.0, 1.0),
     ParamSpec("min_candidates", _DEFAULTS.min_candidates, "best-ranked tiles added when fewer pass equation (4); 0: pure filter", 0, 1_000_000),
     ParamSpec("max_candidates", _DEFAULTS.max_candidates, "most candidate tiles correlated per scan", 1, 1_000_000),
+    ParamSpec("rank_term_cap", _DEFAULTS.rank_term_cap, "cap of each level function's squared term in the candidate ranking", 1e-3, 1e6),
     ParamSpec("window_size", _DEFAULTS.window_size, "side of the square search window around the last estimate [m]; <= 0: whole map", -1.0, 10_000.0),
     ParamSpec("score_truncation", _DEFAULTS.score_truncation, "tau of the truncated squared profile difference [intensity]", 1e-4, 1.0),
     ParamSpec("shift_hypotheses", _DEFAULTS.shift_hypotheses, "correlation optima rescored per candidate", 1, 64),
