@@ -26,7 +26,7 @@ from ..ros.adapter import AdapterOutput, LocalizerAdapter
 from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS
 from .common import LASER_MOUNT_PARAMS, ParamSpec, declare_parameters, guarded
 
-__all__ = ["LocalizerNode", "COMMON_PARAMS", "LOCALIZER_TOPICS"]
+__all__ = ["LocalizerNode", "COMMON_PARAMS", "LOCALIZER_TOPICS", "CAMERA_LOCALIZER_TOPICS"]
 
 COMMON_PARAMS = (
     ParamSpec("map_yaml", "", "nav2 map_server YAML to load at start; empty: wait for the map topic"),
@@ -38,6 +38,12 @@ LOCALIZER_TOPICS = """  in:  scan (sensor_msgs/LaserScan), odom (nav_msgs/Odomet
        initialpose (geometry_msgs/PoseWithCovarianceStamped)
   out: ~/pose (geometry_msgs/PoseWithCovarianceStamped), ~/candidates (geometry_msgs/PoseArray),
        /diagnostics (diagnostic_msgs/DiagnosticArray)
+  services: ~/reinitialize_global_localization, ~/request_nomotion_update (std_srvs/Empty)"""
+
+CAMERA_LOCALIZER_TOPICS = """  in:  camera/image_raw (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8), odom (nav_msgs/Odometry),
+       initialpose (geometry_msgs/PoseWithCovarianceStamped)
+  out: ~/pose (geometry_msgs/PoseWithCovarianceStamped), ~/candidates (geometry_msgs/PoseArray),
+       /diagnostics (diagnostic_msgs/DiagnosticArray), and the method's extra topics
   services: ~/reinitialize_global_localization, ~/request_nomotion_update (std_srvs/Empty)"""
 
 # Odometry must not be lost, yet must accept best-effort publishers too.
@@ -159,7 +165,7 @@ def localizer_node_main(module: Any, argv: Sequence[str] | None = None) -> int:
         module.NODE_NAME,
         module.DESCRIPTION,
         [*COMMON_PARAMS, *module.PARAMS],
-        LOCALIZER_TOPICS,
+        CAMERA_LOCALIZER_TOPICS if getattr(module, "USES_CAMERA", False) else LOCALIZER_TOPICS,
         lambda _options: LocalizerNode(
             module.NODE_NAME,
             module.PARAMS,
