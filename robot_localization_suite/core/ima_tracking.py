@@ -45,6 +45,9 @@ Choices where the thesis is silent (written down as the house rules ask):
 * **Initial pose** (``/initialpose``): one origin at the given pose with
   activity 1 (its nearest node names it), ``o*`` there, the odometry reset and
   the heading offset set to the given heading.
+* **No odometry.** The method needs it (3.2, 3.3): until the first odometry
+  message the odometry pose is taken as the origin, so a robot that never
+  sends odometry gets one update (its first image) and then none.
 * **Estimate.** ``pose`` is ``d*``'s node position with the corrected
   odometry heading; the covariance is diagonal with the node spacing
   (half the median nearest-node distance) as position sigma and 10 degrees
