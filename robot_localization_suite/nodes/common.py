@@ -123,6 +123,11 @@ def run_node(
         pass
     except SystemExit as exc:
         return int(exc.code or 0)
+    except Exception:
+        # SIGINT/SIGTERM shut the context down while a callback was publishing
+        # ("publisher's context is invalid"): that is a normal stop, not a crash.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
