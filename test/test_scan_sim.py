@@ -43,7 +43,7 @@ def write_world(folder: Path, *, duration: float = 8.0, camera: bool = True) -> 
         "start": [1.0, 1.0, 0.0],
         "motion": {"segments": [{"v": 0.3, "w": 0.1, "duration": 4.0}, {"v": 0.0, "w": 0.5, "duration": 4.0}]},
         "kidnappings": [{"time": 2.0, "pose": [2.0, 3.0, -1.0]}],
-        "people": [{"radius": 0.25, "speed": 0.5, "waypoints": [[1.0, 3.2], [5.0, 3.2]]}],
+        "people": [{"radius": 0.25, "speed": 0.5, "waypoints": [[1.0, 0.5], [5.0, 0.5]]}],  # clear of the robot's path
         "laser": {"beams": 120, "fov_deg": 270.0, "range_max": 8.0, "rate_hz": 10.0},
     }
     if camera:
