@@ -176,6 +176,44 @@ def test_updates_wait_for_motion_and_a_nomotion_request_forces_one(office: GridM
     assert localizer.on_scan(Scan(scan.stamp + 0.3, scan.angles, scan.ranges, 0.05, scan.range_max)) is not None
 
 
+def test_a_global_start_keeps_several_hypotheses_after_the_first_scan(office: GridMap, run: Drive) -> None:
+    def first_update(fraction: float) -> float:
+        localizer = MonteCarloLocalizer(MclSettings(max_particles=20000, min_effective_fraction=fraction), office)
+        return localizer.on_scan(run.scans[0]).details["effective_sample_size"]
+
+    # adaptive tempering: at least 10 % of 20000 particles stay effective; without it a handful does
+    assert first_update(0.1) >= 0.1 * 20000 * 0.97
+    assert first_update(0.0) < 200
+
+
+def test_measurement_recovery_sampling_injects_poses_that_fit_the_scan(office: GridMap, run: Drive) -> None:
+    def injected_fit(sampling: str) -> float:
+        localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, recovery_sampling=sampling), office)
+        beams = localizer._select_beams(run.scans[0])
+        poses = localizer._recovery_poses(300, beams)
+        assert len(poses) == 300 and np.all(office.is_free(poses[:, :2]))
+        return float(np.mean(localizer._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=10.0)))
+
+    # the best tenth of uniform draws explains the scan better than uniform draws do
+    assert injected_fit("measurement") > injected_fit("uniform") + 5.0
+
+
+def test_fit_averages_start_as_running_means() -> None:
+    from robot_localization_suite.core.mcl import _RunningAverage
+
+    slow, fast = _RunningAverage(0.001), _RunningAverage(0.1)
+    for value in [0.1] + [0.5] * 49:  # a poor first fit, then good ones
+        slow.update(value)
+        fast.update(value)
+    # the slow average is the plain mean (0.492), not the first value dragged by 0.1 % a step
+    assert slow.value == pytest.approx(0.492, abs=2e-3)
+    assert fast.value == pytest.approx(0.5, abs=1e-3)
+    frozen = _RunningAverage(0.0)  # alpha 0 keeps the first value, as nav2 does
+    for value in (0.3, 0.9):
+        frozen.update(value)
+    assert frozen.value == 0.3
+
+
 # -- bad input ----------------------------------------------------------------------------------
 def test_bad_readings_use_only_the_valid_beams(office: GridMap, run: Drive) -> None:
     localizer = MonteCarloLocalizer(MclSettings(), office)
@@ -231,6 +269,8 @@ def test_settings_refuse_bad_values_by_name() -> None:
         MclSettings(alpha3=float("nan"))
     with pytest.raises(ValueError, match="recovery_alpha_fast"):
         MclSettings(recovery_alpha_fast=1.5)
+    with pytest.raises(ValueError, match="recovery_sampling"):
+        MclSettings(recovery_sampling="gaussian")
     assert MclSettings(robot_model_type="nav2_amcl::OmniMotionModel").omnidirectional
 
 
