@@ -137,10 +137,10 @@ def obstacle_hull(sat, c0, c1, r0, r1):
     c_min, c_max, r_min, r_max = big, -big, big, -big
     if off_cols or off_rows:
         # Off-map cells of the rectangle: whole rows bands and/or whole column bands.
-        c_min = c0 if (off_cols_low or off_rows) else width
-        c_max = c1 if (off_cols_high or off_rows) else -1
-        r_min = r0 if (off_rows_low or off_cols) else height
-        r_max = r1 if (off_rows_high or off_cols) else -1
+        c_min = c0 if (off_cols_low or off_rows) else max(c0, width)
+        c_max = c1 if (off_cols_high or off_rows) else min(c1, -1)
+        r_min = r0 if (off_rows_low or off_cols) else max(r0, height)
+        r_max = r1 if (off_rows_high or off_cols) else min(r1, -1)
     found, in_c_min, in_c_max, in_r_min, in_r_max = inmap_hull(sat, c0, c1, r0, r1)
     if found:
         c_min = min(c_min, in_c_min)
