@@ -219,9 +219,12 @@ def test_symmetric_room_is_reported_ambiguous_with_both_headings_as_candidates(t
     assert estimate.covariance[2, 2] > 1.0
 
 
-def test_kidnapping_is_recovered_in_one_update_and_the_window_is_used_otherwise(learned: PilLocalizer, room: GridMap) -> None:
-    localizer = learned
-    localizer.reinitialize()
+@pytest.mark.parametrize("global_candidates", [50, 0])
+def test_kidnapping_is_recovered_in_one_update_and_the_window_is_used_otherwise(
+    room: GridMap, tmp_path: Path, global_candidates: int
+) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, global_candidates=global_candidates))
+    localizer.set_map(room)
     first = localizer.on_scan(_scan(room, np.array([1.0, 1.0, 0.2]), stamp=1.0))
     assert first.details["window"] == "whole_map"
     nearby = localizer.on_scan(_scan(room, np.array([1.2, 1.1, 0.3]), stamp=2.0))
@@ -229,7 +232,13 @@ def test_kidnapping_is_recovered_in_one_update_and_the_window_is_used_otherwise(
     assert _pose_error(nearby.pose, np.array([1.2, 1.1, 0.3]))[0] < 0.2
     kidnapped = np.array([6.6, 4.0, -2.0])  # 6 m away, outside the 4 m window
     after = localizer.on_scan(_scan(room, kidnapped, stamp=3.0))
-    assert after.details["window"] == "whole_map_after_window"
+    if global_candidates:
+        # Found among the global sentinels scored with the windowed search: a large advantage
+        # switches at once.
+        assert after.details["window"] == "window" and after.details["outside_window"]
+    else:
+        # The paper's hard window: a bad best score inside it widens the search to the whole map.
+        assert after.details["window"] == "whole_map_after_window"
     dxy, dtheta = _pose_error(after.pose, kidnapped)
     assert dxy < 0.2 and dtheta < 0.1
 
@@ -393,3 +402,35 @@ def test_sector_min_beam_mapping_localizes_too(room: GridMap, tmp_path: Path) ->
 def test_pil_offers_the_localizer_and_global_fixer_protocols(learned: PilLocalizer) -> None:
     assert isinstance(learned, Localizer)
     assert isinstance(learned, GlobalFixer)
+
+
+def test_the_window_leaves_a_twin_place_once_the_scans_tell_them_apart(tmp_path: Path) -> None:
+    """A 12 m x 3 m corridor, point-symmetric about its centre but for one cabinet: tracking the
+    twin (12 - x, 3 - y, theta + pi), the estimate stays there while the scans cannot tell the
+    twins apart and moves to the truth once the cabinet is in view."""
+    data = np.zeros((60, 240), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[2:10, 70:80] = data[50:58, 160:170] = 100  # boxes at x 3.5-4.0 south and 8.0-8.5 north (twins)
+    data[2:10, 116:124] = data[50:58, 116:124] = 100  # boxes at x 5.8-6.2 on both walls
+    data[2:12, 20:34] = 100  # cabinet at x 1.0-1.7 on the south wall: the only asymmetry
+    corridor = GridMap(data, RESOLUTION, (0.0, 0.0))
+    range_m = 3.5  # from x = 6.6 neither the truth nor its twin at 5.4 sees the cabinet (or its mirror)
+    localizer = PilLocalizer(_settings(tmp_path, max_range=range_m))
+    localizer.set_map(corridor)
+    localizer.on_odometry(0.0, np.zeros(3))
+    start = 6.6
+    twin = np.array([12.0 - start, 1.5, 0.0])
+    localizer.set_initial_pose(twin, np.eye(3) * 0.01)
+    errors = {}
+    for step, x in enumerate(np.arange(start, 2.0, -0.25)):
+        # The robot drives west facing west; its twin hypothesis drives east, in step with the odometry.
+        localizer.on_odometry(float(step + 1), np.array([start - x, 0.0, 0.0]))
+        truth = np.array([x, 1.5, math.pi])
+        estimate = localizer.on_scan(_scan(corridor, truth, stamp=float(step + 1)))
+        if step == 0:
+            assert _pose_error(estimate.pose, twin)[0] < 0.2  # equal scores: the window keeps the twin
+            assert estimate.status is LocalizerStatus.AMBIGUOUS
+        errors[round(x, 2)] = _pose_error(estimate.pose, truth)
+    # The cabinet's corner (1.7, 0.6) is in range from x < 5.2; a metre later the truth has won for good.
+    late = [error for x, error in errors.items() if x < 4.0]
+    assert late and all(dxy < 0.2 and dtheta < 0.1 for dxy, dtheta in late)

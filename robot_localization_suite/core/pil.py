@@ -43,7 +43,12 @@ Choices and additions, written down (the paper leaves them open, or DESIGN.md
   odometry-free). If the best score inside the window is above
   ``kidnap_score``, the same update searches the whole map (a kidnapping is
   recovered in one update, section 3.1). A LOST estimate, ``reinitialize()``
-  and the start use the whole map.
+  and the start use the whole map. Each windowed update also scores the
+  ``global_candidates`` best-ranked tiles outside the window, which replace
+  the window's best once their score advantage, accumulated over updates,
+  exceeds ``global_switch_margin``: a window
+  that settled on the twin of a symmetric place (the corridor of section 3.2)
+  is left as soon as the scan tells the twins apart, not never.
 * **Outputs.** ``pose`` = best candidate; ``covariance`` = weighted spread of
   the candidates scoring within ``ambiguity_margin`` of the best, plus the
   grid quantisation (``r^2 / 12``, ``Delta^2 / 12``); status ``AMBIGUOUS``
@@ -142,6 +147,11 @@ class PilSettings:
             (9: three sigma). Measured on floor_kidnap (people walking by): the true tile ranks in
             the top 300 for 94 % of scans instead of 91 % uncapped.
         window_size: side of the square search window [m] (paper section 4.2: 4 m); <= 0: whole map.
+        global_candidates: best-ranked tiles outside the window scored with every windowed update
+            (0: the paper's hard window). Without them a window that settled on the twin of a
+            symmetric place never lets go (measured on corridor_kidnap).
+        global_switch_margin: a place outside the window replaces the window's best once its
+            accumulated score advantage exceeds this (normalised score; see ``_prefer_window``).
 
     Theta and scoring (section 2.5):
         score_truncation: ``tau`` of the truncated squared difference [intensity units].
@@ -202,6 +212,8 @@ class PilSettings:
     max_candidates: int = 1000
     rank_term_cap: float = 9.0
     window_size: float = 4.0
+    global_candidates: int = 50
+    global_switch_margin: float = 0.05
 
     score_truncation: float = 0.1
     shift_hypotheses: int = 3
@@ -255,12 +267,14 @@ class PilSettings:
         for name in ("min_candidates", "refine_candidates"):
             if getattr(self, name) < 0:
                 raise ValueError(f"PilSettings.{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.global_candidates < 0:
+            raise ValueError(f"PilSettings.global_candidates must be >= 0, got {self.global_candidates!r}")
         for name in ("max_candidates", "shift_hypotheses", "refine_iterations", "refine_beams"):
             if getattr(self, name) < 1:
                 raise ValueError(f"PilSettings.{name} must be >= 1, got {getattr(self, name)!r}")
         if not np.isfinite(self.window_size):
             raise ValueError(f"PilSettings.window_size must be finite, got {self.window_size!r}")
-        for name in ("lost_score", "kidnap_score", "ambiguity_margin", "ambiguity_angle"):
+        for name in ("lost_score", "kidnap_score", "ambiguity_margin", "ambiguity_angle", "global_switch_margin"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"PilSettings.{name} must be >= 0, got {value!r}")
@@ -283,6 +297,15 @@ def make_level_functions(settings: PilSettings) -> list[LevelFunction]:
     ]
 
 
+def _best_ranked(indices: NDArray[np.int64], rank: NDArray[np.float64], count: int) -> NDArray[np.int64]:
+    """The ``count`` entries of ``indices`` with the smallest ``rank``, best first."""
+    if count <= 0 or indices.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if count < indices.size:
+        indices = indices[np.argpartition(rank[indices], count - 1)[:count]]
+    return indices[np.argsort(rank[indices], kind="stable")]
+
+
 @dataclass
 class _Search:
     """Ranked candidates of one query."""
@@ -294,6 +317,7 @@ class _Search:
     passes: NDArray[np.bool_]
     tiles: NDArray[np.int64]
     refined: int
+    is_sentinel: NDArray[np.bool_]
 
     @property
     def best_score(self) -> float:
@@ -327,6 +351,7 @@ class PilLocalizer:
         self._tracked_pose: NDArray[np.float64] | None = None
         self._odom_at_tracked: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
+        self._switch_evidence = 0.0
 
     # -- Localizer protocol -------------------------------------------------------
     def set_map(self, grid_map: GridMap) -> None:
@@ -356,7 +381,7 @@ class PilLocalizer:
         if centre is None or self.settings.window_size <= 0.0:
             search = self._search(scan, profile, None)
         else:
-            search = self._search(scan, profile, centre)
+            search = self._prefer_window(self._search(scan, profile, centre))
             window = "window"
             if search.best_score > self.settings.kidnap_score:
                 wider = self._search(scan, profile, None)
@@ -370,6 +395,41 @@ class PilLocalizer:
             self._tracked_pose = estimate.pose.copy()
             self._odom_at_tracked = None if self._last_odom is None else self._last_odom.copy()
         return estimate
+
+    def _prefer_window(self, search: _Search) -> _Search:
+        """Keep the window's best first unless the places outside it have been clearly better.
+
+        Evidence that the best place outside the window beats the window's best is
+        accumulated over updates as a CUSUM, ``e <- max(0, e + d - drift)`` with ``d``
+        the score difference and ``drift = global_switch_margin / 10``; the estimate
+        leaves the window when ``e`` exceeds ``global_switch_margin``. Twins of a
+        symmetric place score alike, so ``e`` stays near 0 and the estimate does not
+        jump between them; once the scan tells them apart (a cabinet comes into view),
+        the small but steady advantage adds up within a few updates.
+        """
+        inside = np.flatnonzero(~search.is_sentinel)
+        outside = np.flatnonzero(search.is_sentinel)
+        if inside.size == 0 or outside.size == 0:
+            self._switch_evidence = 0.0
+            return search
+        margin = self.settings.global_switch_margin
+        advantage = float(search.scores[inside[0]] - search.scores[outside[0]])
+        self._switch_evidence = max(0.0, self._switch_evidence + advantage - 0.1 * margin)
+        if self._switch_evidence > margin:
+            self._switch_evidence = 0.0
+            first = int(outside[0])
+        else:
+            first = int(inside[0])
+        if first == 0:
+            return search
+        order = np.r_[first, np.delete(np.arange(search.scores.size), first)]
+        return replace(
+            search,
+            poses=search.poses[order],
+            scores=search.scores[order],
+            tiles=search.tiles[order],
+            is_sentinel=search.is_sentinel[order],
+        )
 
     def global_fix(self, scan: Scan) -> Estimate:
         """Localize from this scan alone over the whole map (no prior, tracking state untouched)."""
@@ -389,6 +449,7 @@ class PilLocalizer:
         """Forget the last estimate: the next scan searches the whole map."""
         self._tracked_pose = None
         self._odom_at_tracked = None
+        self._switch_evidence = 0.0
 
     def request_nomotion_update(self) -> None:
         """PIL updates on every scan, moving or not: nothing to do."""
@@ -511,42 +572,40 @@ class PilLocalizer:
             return self._tracked_pose
         return compose(self._tracked_pose, relative(self._odom_at_tracked, self._last_odom))
 
-    def _select_tiles(self, profile: LiveProfile, centre: NDArray[np.float64] | None) -> tuple[NDArray[np.int64], int, NDArray[np.bool_]]:
-        """Candidate tiles (ranked), the count passing equation (4), and the pass mask over all tiles."""
+    def _select_tiles(
+        self, profile: LiveProfile, centre: NDArray[np.float64] | None
+    ) -> tuple[NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.bool_]]:
+        """Candidate tiles (ranked), which of them are global sentinels outside the window,
+        the count passing equation (4) in the searched area, and the pass mask over all tiles."""
         assert self.learning is not None and self._sheet_features is not None
-        tiles_all = self.learning.tile_count
-        if centre is None:
-            tiles = np.arange(tiles_all)
-        else:
-            half = 0.5 * self.settings.window_size
-            offset = np.abs(self.learning.tile_centres - centre[None, :2])
-            tiles = np.flatnonzero((offset[:, 0] <= half) & (offset[:, 1] <= half))
-        features = self._sheet_features if centre is None else self._sheet_features[:, :, tiles]
+        settings = self.settings
         passes, rank = feature_distances(
-            features, self._live_features(profile), self._alphas, self._sigmas, self.settings.rank_term_cap
+            self._sheet_features, self._live_features(profile), self._alphas, self._sigmas, settings.rank_term_cap
         )
-        pass_mask = np.zeros(tiles_all, dtype=bool)
-        pass_mask[tiles] = passes
-        filter_count = int(passes.sum())
-        passing = np.flatnonzero(passes)
-        passing = passing[np.argsort(rank[passing], kind="stable")][: self.settings.max_candidates]
-        wanted = min(self.settings.min_candidates, tiles.size)
-        if passing.size < wanted:
-            others = np.flatnonzero(~passes)
-            extra = wanted - passing.size
-            if extra < others.size:
-                others = others[np.argpartition(rank[others], extra - 1)[:extra]]
-            others = others[np.argsort(rank[others], kind="stable")]
-            passing = np.concatenate([passing, others])
-        return tiles[passing], filter_count, pass_mask
+        if centre is None:
+            area = np.ones(passes.size, dtype=bool)
+        else:
+            offset = np.abs(self.learning.tile_centres - centre[None, :2])
+            area = (offset[:, 0] <= 0.5 * settings.window_size) & (offset[:, 1] <= 0.5 * settings.window_size)
+        pass_mask = passes & area
+        chosen = _best_ranked(np.flatnonzero(pass_mask), rank, settings.max_candidates)
+        wanted = min(settings.min_candidates, int(area.sum()))
+        if chosen.size < wanted:
+            chosen = np.concatenate([chosen, _best_ranked(np.flatnonzero(area & ~passes), rank, wanted - chosen.size)])
+        sentinels = np.zeros(0, dtype=np.int64)
+        if centre is not None and settings.global_candidates > 0:
+            sentinels = _best_ranked(np.flatnonzero(~area), rank, settings.global_candidates)
+        tiles = np.concatenate([chosen, sentinels])
+        is_sentinel = np.concatenate([np.zeros(chosen.size, dtype=bool), np.ones(sentinels.size, dtype=bool)])
+        return tiles, is_sentinel, int(pass_mask.sum()), pass_mask
 
     def _search(self, scan: Scan, profile: LiveProfile, centre: NDArray[np.float64] | None) -> _Search:
         assert self.learning is not None and self._caster is not None and self._distance_field is not None
         settings = self.settings
-        tiles, filter_count, pass_mask = self._select_tiles(profile, centre)
+        tiles, is_sentinel, filter_count, pass_mask = self._select_tiles(profile, centre)
         self._last_passes = pass_mask
         if tiles.size == 0:
-            return _Search(np.zeros((0, 3)), np.zeros(0), filter_count, 0, pass_mask, tiles, 0)
+            return _Search(np.zeros((0, 3)), np.zeros(0), filter_count, 0, pass_mask, tiles, 0, is_sentinel)
         correlation = correlate_profiles(
             self.learning.intensities,
             self.learning.spectra,
@@ -561,7 +620,7 @@ class PilLocalizer:
         poses = np.column_stack([self.learning.tile_centres[tiles], np.atleast_1d(thetas)])
         scores = correlation.scores.copy()
         order = np.argsort(scores, kind="stable")
-        poses, scores, tiles = poses[order], scores[order], tiles[order]
+        poses, scores, tiles, is_sentinel = poses[order], scores[order], tiles[order], is_sentinel[order]
 
         refined = min(settings.refine_candidates, len(poses))
         if refined > 0:
@@ -589,8 +648,8 @@ class PilLocalizer:
             poses[:refined] = np.where(use_refined[:, None], better, poses[:refined])
             scores[:refined] = np.minimum(recast[:refined], recast[refined:])
             order = np.argsort(scores, kind="stable")
-            poses, scores, tiles = poses[order], scores[order], tiles[order]
-        return _Search(poses, scores, filter_count, len(poses), pass_mask, tiles, refined)
+            poses, scores, tiles, is_sentinel = poses[order], scores[order], tiles[order], is_sentinel[order]
+        return _Search(poses, scores, filter_count, len(poses), pass_mask, tiles, refined, is_sentinel)
 
     def _estimate(self, scan: Scan, search: _Search, window: str, notes: dict[str, Any]) -> Estimate:
         settings = self.settings
@@ -599,6 +658,7 @@ class PilLocalizer:
             "filter_count": search.filter_count,
             "candidate_count": search.candidate_count,
             "refined_candidates": search.refined,
+            "outside_window": bool(search.is_sentinel.size and search.is_sentinel[0]),
             "learned_fov_deg": round(math.degrees(self._layout.field_of_view), 3),
             "learned_range_m": self._range,
             "sheets": 1 if self._layout.full_circle else settings.reference_headings,

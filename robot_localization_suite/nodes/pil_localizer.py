@@ -65,6 +65,8 @@ PARAMS = (
     ParamSpec("max_candidates", _DEFAULTS.max_candidates, "most candidate tiles correlated per scan", 1, 1_000_000),
     ParamSpec("rank_term_cap", _DEFAULTS.rank_term_cap, "cap of each level function's squared term in the candidate ranking", 1e-3, 1e6),
     ParamSpec("window_size", _DEFAULTS.window_size, "side of the square search window around the last estimate [m]; <= 0: whole map", -1.0, 10_000.0),
+    ParamSpec("global_candidates", _DEFAULTS.global_candidates, "best-ranked tiles outside the window scored with every windowed update; 0: hard window", 0, 1_000_000),
+    ParamSpec("global_switch_margin", _DEFAULTS.global_switch_margin, "a tile outside the window wins only when its score is better by this much", 0.0, 1.0),
     ParamSpec("score_truncation", _DEFAULTS.score_truncation, "tau of the truncated squared profile difference [intensity]", 1e-4, 1.0),
     ParamSpec("shift_hypotheses", _DEFAULTS.shift_hypotheses, "correlation optima rescored per candidate", 1, 64),
     ParamSpec("refine_candidates", _DEFAULTS.refine_candidates, "best candidates refined below the tile size; 0: off", 0, 10_000),
