@@ -664,7 +664,7 @@ class MonteCarloLocalizer:
         if effective(1.0) >= target:
             return 1.0
         low, high = 0.0, 1.0  # effective(low) >= target > effective(high)
-        for _ in range(12):
+        for _ in range(8):  # a factor to 1/256 is plenty
             middle = 0.5 * (low + high)
             if effective(middle) >= target:
                 low = middle
@@ -780,7 +780,8 @@ class MonteCarloLocalizer:
         # injected share uniform) until the bound stops the draw; small batches first so
         # that a converged cloud costs little.
         batch = min(s.max_particles, max(4 * s.min_particles, 2048))
-        while True:
+        count, bins = s.max_particles, -1  # -1: no KLD draw (min_particles == max_particles fixes the count)
+        while s.min_particles < s.max_particles:
             candidates_index = low_variance_resample(weights, batch, self.rng)
             self.rng.shuffle(candidates_index)
             candidates = self.particles[candidates_index]
