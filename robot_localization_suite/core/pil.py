@@ -685,7 +685,9 @@ class PilLocalizer:
         else:
             status = LocalizerStatus.LOCALIZED
         temperature = max(settings.ambiguity_margin, 1e-6) / 3.0
-        weights = np.exp(-(search.scores - best_score) / temperature)
+        # The window's best may lead a place outside the window that scores a little better
+        # (see _prefer_window): such places weigh as much as the best, never more.
+        weights = np.exp(-np.maximum(search.scores - best_score, 0.0) / temperature)
         diffs = np.column_stack(
             [search.poses[near, 0] - best[0], search.poses[near, 1] - best[1], angle_difference(search.poses[near, 2], best[2])]
         )
