@@ -138,8 +138,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -423,7 +422,6 @@ class MclCounters:
     skipped_scans: int = 0
     ignored_odometry: int = 0
     injected_particles: int = 0
-    extra: dict[str, int] = field(default_factory=dict)
 
 
 class MonteCarloLocalizer:
@@ -804,15 +802,3 @@ class MonteCarloLocalizer:
         self.particles = particles
         self.log_weights = np.zeros(len(particles))
         return count, injected, bins
-
-    def state(self) -> dict[str, Any]:
-        """A summary for diagnostics: particle count, averages, counters."""
-        return {
-            "particles": self.particle_count,
-            "w_slow": self.w_slow,
-            "w_fast": self.w_fast,
-            "updates": self.counters.updates,
-            "skipped_scans": self.counters.skipped_scans,
-            "ignored_odometry": self.counters.ignored_odometry,
-            "injected_particles": self.counters.injected_particles,
-        }
