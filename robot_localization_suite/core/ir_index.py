@@ -1,0 +1,763 @@
+"""Precomputation and the two-level index of the IR initialiser (Aycard & Brouard, sections IV-A-2, IV-B-1, IV-B-2).
+
+What is stored, for every candidate position ``(x, y)`` of a regular grid over
+the free space of the map:
+
+* one *ray fan*: the ranges the shared :class:`~.raycast.RayCaster` returns
+  along ``M`` rays spread evenly over 360 degrees, quantised to one byte
+  (``range_resolution`` steps; 255 = no return within ``max_range``). The
+  expected scan for any heading ``theta`` is this fan rotated by
+  ``theta / (2 pi / M)`` rays, so one cast per position serves every heading
+  (the paper ray-casts every ``(x, y, theta)``: 3.5 million scans);
+* the *patterns* seen from the position (runs of consecutive hits between
+  no-return readings, section IV-B-1), taken over the full 360-degree fan
+  instead of the paper's two views at theta and theta + 180 degrees: the fan
+  holds both views at once, and a pattern that straddles the edge of one view
+  stays whole;
+* the index *hit -> pattern* (a sparse ``terms x patterns`` matrix) and
+  *pattern -> position* (a sparse ``patterns x positions`` matrix whose
+  values are frequencies: how many times the pattern occurs at the position),
+  the paper's two-level index (section IV-B-2, figure 9 left). A pattern seen
+  before (same quantised ranges) is not added again; its frequency grows.
+
+A *hit* of the first level is what a live scan yields before its pose is
+known: ``(anchor side, offset, range bin)``, the quantised range of the beam
+``offset`` beams inside a pattern counted from the no-return reading that
+delimits it (``side`` 0: from its start, counter-clockwise; 1: from its end).
+It does not depend on the heading because a pattern's ends are fixed in the
+world. Only the first ``pattern_terms_per_end`` beams from each end are
+indexed: they are what a truncated live pattern (cut by the edge of a
+limited field of view) still shares with the stored one. A pattern with no
+delimiting no-return at all (a closed room within ``pattern_max_range``) has
+no anchor and is not indexed; ``split_at_jump`` optionally also delimits
+patterns at range discontinuities so that such places get anchors too.
+
+Everything here is deterministic; the cache file is keyed by the map
+fingerprint and a hash of every setting that changes its content.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from tqdm.auto import tqdm
+
+from .errors import CacheError
+from .grid_map import GridMap
+from .raycast import RayCaster
+
+__all__ = [
+    "NO_RETURN",
+    "HitIndex",
+    "FanModel",
+    "IndexSettings",
+    "IRIndex",
+    "candidate_positions",
+    "cast_fans",
+    "extract_runs",
+    "pattern_terms",
+    "default_cache_dir",
+]
+
+_LOG = logging.getLogger(__name__)
+
+#: Byte code of a reading with no return within the model's maximum range.
+NO_RETURN = 255
+#: Largest byte code of a hit.
+MAX_HIT_CODE = 254
+#: Bump when the cache layout or the meaning of a stored array changes.
+CACHE_VERSION = 4
+
+
+def default_cache_dir() -> Path:
+    """``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``."""
+    env = os.environ.get("RLS_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "robot_localization_suite"
+
+
+@dataclass(frozen=True)
+class FanModel:
+    """The 360-degree ray fan cast at every position: the scanner model as the index sees it.
+
+    Attributes:
+        rays: number of rays over 360 degrees (``M``).
+        max_range: longest range stored [m]; farther hits are no-returns.
+        range_resolution: quantisation step of the stored ranges [m].
+    """
+
+    rays: int
+    max_range: float
+    range_resolution: float
+
+    def __post_init__(self) -> None:
+        if self.rays < 8:
+            raise ValueError(f"a ray fan needs at least 8 rays, got {self.rays!r}")
+        if not (np.isfinite(self.range_resolution) and self.range_resolution > 0.0):
+            raise ValueError(f"range_resolution must be positive, got {self.range_resolution!r}")
+        if not (np.isfinite(self.max_range) and 0.0 < self.max_range <= MAX_HIT_CODE * self.range_resolution + 1e-9):
+            raise ValueError(
+                f"max_range must be in (0, {MAX_HIT_CODE * self.range_resolution:.2f}] m for one-byte codes "
+                f"at {self.range_resolution} m, got {self.max_range!r}"
+            )
+
+    @property
+    def ray_step(self) -> float:
+        """Angle between neighbouring rays [rad]."""
+        return 2.0 * math.pi / self.rays
+
+    def angles(self) -> NDArray[np.float64]:
+        """Ray angles ``(M,)`` [rad] relative to the map x axis, ray 0 along +x."""
+        return np.arange(self.rays, dtype=np.float64) * self.ray_step
+
+    def quantise(self, ranges: NDArray[np.floating]) -> NDArray[np.uint8]:
+        """Byte codes of ranges [m]: nearest step, NO_RETURN for inf / NaN / beyond ``max_range``."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            hit = np.isfinite(ranges) & (ranges <= self.max_range) & (ranges >= 0.0)
+        codes = np.full(ranges.shape, NO_RETURN, dtype=np.uint8)
+        codes[hit] = np.minimum(np.rint(ranges[hit] / self.range_resolution), MAX_HIT_CODE).astype(np.uint8)
+        return codes
+
+    def code_of(self, metres: float) -> int:
+        """Largest hit code at or below ``metres``."""
+        return int(min(MAX_HIT_CODE, math.floor(metres / self.range_resolution + 1e-9)))
+
+
+@dataclass(frozen=True)
+class IndexSettings:
+    """Everything that changes the content of an index (and so its cache key).
+
+    Attributes:
+        grid_resolution: spacing of the candidate positions [m] (paper: 5 cm).
+        min_clearance: positions closer than this to an obstacle or unknown cell are
+            left out [m] (a robot body keeps its laser off walls; 0 keeps every free cell).
+        unknown_blocks: whether unknown cells stop the precomputed rays.
+        pattern_max_range: readings beyond this count as no-returns when patterns
+            are cut [m] (paper: its laser's 5.5 m range, section II).
+        pattern_range_bin: range bin of a first-level hit [m].
+        pattern_terms_per_end: beams indexed from each anchored end of a pattern.
+        min_pattern_beams: shorter runs of hits are not patterns (noise, legs).
+        split_at_jump: also delimit patterns where consecutive ranges differ by more
+            than this [m]; 0 follows the paper (no-returns only).
+
+    The defaults are :class:`~.ir.IRSettings`'s, which gives their sources.
+    """
+
+    grid_resolution: float = 0.05
+    min_clearance: float = 0.15
+    unknown_blocks: bool = False
+    pattern_max_range: float = 5.5
+    pattern_range_bin: float = 0.10
+    pattern_terms_per_end: int = 30
+    min_pattern_beams: int = 3
+    split_at_jump: float = 0.5
+
+    def __post_init__(self) -> None:
+        positive = ("grid_resolution", "pattern_max_range", "pattern_range_bin")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be positive and finite, got {value!r}")
+        for name in ("min_clearance", "split_at_jump"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} must be >= 0 and finite, got {value!r}")
+        if self.pattern_terms_per_end < 1:
+            raise ValueError(f"pattern_terms_per_end must be >= 1, got {self.pattern_terms_per_end!r}")
+        if self.min_pattern_beams < 1:
+            raise ValueError(f"min_pattern_beams must be >= 1, got {self.min_pattern_beams!r}")
+
+
+# --------------------------------------------------------------------------------------------
+# Positions and ray fans (IV-A-2)
+# --------------------------------------------------------------------------------------------
+def candidate_positions(grid_map: GridMap, grid_resolution: float, min_clearance: float) -> NDArray[np.float64]:
+    """Centres ``(P, 2)`` [m] of a ``grid_resolution`` lattice over the map that fall in free cells
+    at least ``min_clearance`` from any occupied or unknown cell."""
+    x0, x1, y0, y1 = grid_map.extent
+    xs = np.arange(x0 + grid_resolution / 2.0, x1, grid_resolution)
+    ys = np.arange(y0 + grid_resolution / 2.0, y1, grid_resolution)
+    gx, gy = np.meshgrid(xs, ys)
+    points = np.stack([gx.ravel(), gy.ravel()], axis=-1)
+    cells = grid_map.world_to_cell(points)
+    inside = grid_map.in_bounds(cells)
+    points, cells = points[inside], cells[inside]
+    keep = grid_map.free_mask[cells[:, 1], cells[:, 0]]
+    if min_clearance > 0.0:
+        clearance = grid_map.distance_field(unknown_is_obstacle=True)
+        keep &= clearance[cells[:, 1], cells[:, 0]] >= min_clearance - 1e-6
+    return points[keep]
+
+
+def cast_fans(
+    grid_map: GridMap,
+    positions: NDArray[np.float64],
+    fan: FanModel,
+    *,
+    unknown_blocks: bool = False,
+    progress: bool = True,
+    chunk: int = 8192,
+) -> NDArray[np.uint8]:
+    """Quantised 360-degree fans ``(P, M)`` at ``positions`` by the shared ray caster (threads over poses)."""
+    caster = RayCaster(grid_map, max_range=fan.max_range, unknown_blocks=unknown_blocks)
+    angles = fan.angles()
+    fans = np.empty((len(positions), fan.rays), dtype=np.uint8)
+    poses = np.zeros((min(chunk, max(len(positions), 1)), 3))
+    bar = tqdm(total=len(positions), desc="IR ray fans", unit="pos", disable=not progress, leave=False)
+    for start in range(0, len(positions), chunk):
+        stop = min(start + chunk, len(positions))
+        poses_chunk = poses[: stop - start]
+        poses_chunk[:, :2] = positions[start:stop]
+        fans[start:stop] = fan.quantise(caster.cast(poses_chunk, angles, parallel=True))
+        bar.update(stop - start)
+    bar.close()
+    return fans
+
+
+# --------------------------------------------------------------------------------------------
+# Patterns (IV-B-1)
+# --------------------------------------------------------------------------------------------
+@numba.njit(cache=True, nogil=True)
+def _runs_of_row(codes, valid, cap, jump, min_len, circular, starts, lengths, anchors):
+    """Runs of hits in one row of codes; returns their count.
+
+    A run starts at a hit whose predecessor is a no-return, or across a range jump.
+    ``anchors`` bit 0: the start is delimited (not the edge of a limited view);
+    bit 1: the end is. Invalid readings (``valid`` False) continue a run.
+    With ``circular`` the row wraps around; a row of hits with no delimiter has no run.
+    """
+    m = codes.shape[0]
+    count = 0
+
+    def is_hit(i):
+        return (not valid[i]) or codes[i] <= cap
+
+    def breaks(i, j):
+        # Whether consecutive readings i -> j are not part of one run.
+        if not (is_hit(i) and is_hit(j)):
+            return True
+        if jump > 0 and valid[i] and valid[j]:
+            d = np.int64(codes[i]) - np.int64(codes[j])
+            if d > jump or -d > jump:
+                return True
+        return False
+
+    if circular:
+        first = -1
+        for i in range(m):
+            if is_hit(i) and breaks((i - 1) % m, i):
+                first = i
+                break
+        if first < 0:
+            return 0
+        i = first
+        visited = 0
+        while visited < m:
+            if is_hit(i) and breaks((i - 1) % m, i):
+                length = 1
+                j = i
+                while length < m and not breaks(j, (j + 1) % m):
+                    j = (j + 1) % m
+                    length += 1
+                if length >= min_len:
+                    starts[count] = i
+                    lengths[count] = length
+                    anchors[count] = 3
+                    count += 1
+                i = (i + length) % m
+                visited += length
+            else:
+                i = (i + 1) % m
+                visited += 1
+        return count
+    i = 0
+    while i < m:
+        if is_hit(i):
+            start_anchor = 0 if i == 0 else (1 if breaks(i - 1, i) else 0)
+            length = 1
+            j = i
+            while j + 1 < m and not breaks(j, j + 1):
+                j += 1
+                length += 1
+            end_anchor = 2 if j + 1 < m else 0
+            # Invalid readings at a delimiter cannot anchor: the delimiter may be a hit.
+            if start_anchor and not valid[i]:
+                start_anchor = 0
+            if end_anchor and not valid[j]:
+                end_anchor = 0
+            if length >= min_len:
+                starts[count] = i
+                lengths[count] = length
+                anchors[count] = start_anchor | end_anchor
+                count += 1
+            i = j + 1
+        else:
+            i += 1
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _fnv_run(codes, start, length, divisor):
+    """FNV-1a hash of the binned codes of a circular run (identifies a pattern)."""
+    m = codes.shape[0]
+    h = np.uint64(14695981039346656037)
+    prime = np.uint64(1099511628211)
+    h = (h ^ np.uint64(length)) * prime
+    for k in range(length):
+        h = (h ^ np.uint64(codes[(start + k) % m] // divisor)) * prime
+    return h
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _count_fan_runs(fans, cap, jump, min_len):
+    count = np.zeros(fans.shape[0], dtype=np.int64)
+    m = fans.shape[1]
+    for p in numba.prange(fans.shape[0]):
+        starts = np.empty(m, dtype=np.int64)
+        lengths = np.empty(m, dtype=np.int64)
+        anchors = np.empty(m, dtype=np.int64)
+        valid = np.ones(m, dtype=np.bool_)
+        count[p] = _runs_of_row(fans[p], valid, cap, jump, min_len, True, starts, lengths, anchors)
+    return count
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _fill_fan_runs(fans, cap, jump, min_len, divisor, offsets, out_start, out_length, out_hash):
+    m = fans.shape[1]
+    for p in numba.prange(fans.shape[0]):
+        starts = np.empty(m, dtype=np.int64)
+        lengths = np.empty(m, dtype=np.int64)
+        anchors = np.empty(m, dtype=np.int64)
+        valid = np.ones(m, dtype=np.bool_)
+        n = _runs_of_row(fans[p], valid, cap, jump, min_len, True, starts, lengths, anchors)
+        for r in range(n):
+            o = offsets[p] + r
+            out_start[o] = starts[r]
+            out_length[o] = lengths[r]
+            out_hash[o] = _fnv_run(fans[p], starts[r], lengths[r], divisor)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_terms(fans, rows, starts, lengths, anchors, valid_rows, per_end, divisor, bins, offsets, out, circular):
+    """Term ids of runs: ``((side * per_end) + offset) * bins + range_bin``; -1 where a reading is invalid."""
+    m = fans.shape[1]
+    for r in range(rows.shape[0]):
+        codes = fans[rows[r]]
+        valid = valid_rows[rows[r]]
+        o = offsets[r]
+        n = min(per_end, lengths[r])
+        for k in range(n):
+            if anchors[r] & 1:
+                i = (starts[r] + k) % m if circular else starts[r] + k
+                out[o] = (k * bins + codes[i] // divisor) if valid[i] else -1
+                o += 1
+            if anchors[r] & 2:
+                i = (starts[r] + lengths[r] - 1 - k) % m if circular else starts[r] + lengths[r] - 1 - k
+                out[o] = ((per_end + k) * bins + codes[i] // divisor) if valid[i] else -1
+                o += 1
+
+
+def extract_runs(
+    codes: NDArray[np.uint8],
+    valid: NDArray[np.bool_],
+    *,
+    cap_code: int,
+    jump_codes: int,
+    min_len: int,
+    circular: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Patterns of one row of codes: ``(starts, lengths, anchors)`` (anchors bit 0 start, bit 1 end)."""
+    m = codes.shape[0]
+    starts = np.empty(m, dtype=np.int64)
+    lengths = np.empty(m, dtype=np.int64)
+    anchors = np.empty(m, dtype=np.int64)
+    n = _runs_of_row(
+        np.ascontiguousarray(codes, dtype=np.uint8),
+        np.ascontiguousarray(valid, dtype=np.bool_),
+        cap_code,
+        jump_codes,
+        min_len,
+        circular,
+        starts,
+        lengths,
+        anchors,
+    )
+    return starts[:n], lengths[:n], anchors[:n]
+
+
+def pattern_terms(
+    codes: NDArray[np.uint8],
+    valid: NDArray[np.bool_],
+    starts: NDArray[np.int64],
+    lengths: NDArray[np.int64],
+    anchors: NDArray[np.int64],
+    *,
+    per_end: int,
+    divisor: int,
+    circular: bool,
+) -> list[NDArray[np.int64]]:
+    """First-level hits (term ids, see the module docstring) of each pattern of one row."""
+    bins = MAX_HIT_CODE // divisor + 1
+    ends = ((anchors & 1) > 0).astype(np.int64) + ((anchors & 2) > 0).astype(np.int64)
+    counts = np.minimum(lengths, per_end) * ends
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    out = np.empty(offsets[-1], dtype=np.int64)
+    _fill_terms(
+        np.ascontiguousarray(codes, dtype=np.uint8).reshape(1, -1),
+        np.zeros(len(starts), dtype=np.int64),
+        starts,
+        lengths,
+        anchors,
+        np.ascontiguousarray(valid, dtype=np.bool_).reshape(1, -1),
+        per_end,
+        divisor,
+        bins,
+        offsets[:-1],
+        out,
+        circular,
+    )
+    return [out[offsets[i] : offsets[i + 1]] for i in range(len(starts))]
+
+
+# --------------------------------------------------------------------------------------------
+# The index (IV-B-2)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class HitIndex:
+    """The first level, hit -> pattern, as an inverted index (CSR without values: every link counts 1).
+
+    Attributes:
+        indptr: ``(T + 1,)`` start of each hit's row in ``patterns``.
+        patterns: ``(L,)`` pattern ids, ascending within each row.
+        pattern_count: number of patterns ``U``.
+    """
+
+    indptr: NDArray[np.int64]
+    patterns: NDArray[np.int32]
+    pattern_count: int
+
+    @property
+    def term_count(self) -> int:
+        return int(len(self.indptr) - 1)
+
+    @property
+    def nnz(self) -> int:
+        return int(len(self.patterns))
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.indptr.nbytes + self.patterns.nbytes)
+
+    def row(self, term: int) -> NDArray[np.int32]:
+        """The patterns holding hit ``term``."""
+        return self.patterns[self.indptr[term] : self.indptr[term + 1]]
+
+    def as_csr(self) -> sp.csr_matrix:
+        """The same index as a ``(T, U)`` scipy CSR matrix of ones."""
+        return sp.csr_matrix(
+            (np.ones(self.nnz, dtype=np.float32), self.patterns, self.indptr), shape=(self.term_count, self.pattern_count)
+        )
+
+
+@numba.njit(cache=True, nogil=True)
+def _invert(term_offsets, terms, term_count):
+    """Pattern-major hit lists -> hit-major pattern lists (a counting sort; patterns stay ascending)."""
+    counts = np.zeros(term_count + 1, dtype=np.int64)
+    for t in terms:
+        counts[t + 1] += 1
+    indptr = np.cumsum(counts)
+    fill = indptr[:-1].copy()
+    out = np.empty(terms.shape[0], dtype=np.int32)
+    for u in range(term_offsets.shape[0] - 1):
+        for e in range(term_offsets[u], term_offsets[u + 1]):
+            t = terms[e]
+            out[fill[t]] = u
+            fill[t] += 1
+    return indptr, out
+
+
+@dataclass
+class IRIndex:
+    """Precomputed fans and the two-level index of one map.
+
+    Attributes:
+        positions: ``(P, 2)`` candidate positions [m].
+        fans: ``(P, M)`` quantised 360-degree fans (byte codes, see :class:`FanModel`).
+        fan: the fan model.
+        settings: what the index was built with.
+        hit_patterns: level 1, first-level hit -> patterns holding it.
+        pattern_positions: ``(U, P)`` CSR of frequencies (occurrences of pattern ``u`` at position ``p``).
+        pattern_frequency: ``(U,)`` occurrences of each pattern over the whole map.
+        build_seconds: wall time of the precomputation (0 when loaded from the cache).
+        cache_path: the cache file used, if any.
+    """
+
+    positions: NDArray[np.float64]
+    fans: NDArray[np.uint8]
+    fan: FanModel
+    settings: IndexSettings
+    hit_patterns: HitIndex
+    pattern_positions: sp.csr_matrix
+    pattern_frequency: NDArray[np.int64]
+    build_seconds: float = 0.0
+    cache_path: Path | None = None
+
+    # -- derived sizes ------------------------------------------------------------------
+    @property
+    def pattern_divisor(self) -> int:
+        """Fan codes per first-level range bin."""
+        return max(1, int(round(self.settings.pattern_range_bin / self.fan.range_resolution)))
+
+    @property
+    def pattern_cap_code(self) -> int:
+        return self.fan.code_of(min(self.settings.pattern_max_range, self.fan.max_range))
+
+    @property
+    def jump_codes(self) -> int:
+        if self.settings.split_at_jump <= 0.0:
+            return 0
+        return max(1, int(round(self.settings.split_at_jump / self.fan.range_resolution)))
+
+    @property
+    def term_bins(self) -> int:
+        return MAX_HIT_CODE // self.pattern_divisor + 1
+
+    @property
+    def term_count(self) -> int:
+        return 2 * self.settings.pattern_terms_per_end * self.term_bins
+
+    def nbytes(self) -> int:
+        """Memory held by the arrays [bytes]."""
+        total = self.positions.nbytes + self.fans.nbytes + self.pattern_frequency.nbytes
+        total += self.hit_patterns.nbytes
+        matrix = self.pattern_positions
+        total += matrix.data.nbytes + matrix.indices.nbytes + matrix.indptr.nbytes
+        return int(total)
+
+    # -- building -----------------------------------------------------------------------
+    @classmethod
+    def build(
+        cls,
+        grid_map: GridMap,
+        fan: FanModel,
+        settings: IndexSettings,
+        *,
+        progress: bool = True,
+    ) -> IRIndex:
+        """Cast the fans at every candidate position, cut the patterns and build the two-level index."""
+        start_time = time.perf_counter()
+        positions = candidate_positions(grid_map, settings.grid_resolution, settings.min_clearance)
+        if len(positions) == 0:
+            raise ValueError(
+                f"the map has no free position at {settings.grid_resolution} m with clearance "
+                f"{settings.min_clearance} m; lower min_clearance"
+            )
+        fans = cast_fans(grid_map, positions, fan, unknown_blocks=settings.unknown_blocks, progress=progress)
+        index = cls(
+            positions=positions,
+            fans=fans,
+            fan=fan,
+            settings=settings,
+            hit_patterns=HitIndex(np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int32), 0),
+            pattern_positions=sp.csr_matrix((0, 0), dtype=np.float32),
+            pattern_frequency=np.zeros(0, dtype=np.int64),
+        )
+        index._build_patterns(progress=progress)
+        index.build_seconds = time.perf_counter() - start_time
+        return index
+
+    def _build_patterns(self, *, progress: bool) -> None:
+        settings = self.settings
+        fans = self.fans
+        cap, jump, divisor = self.pattern_cap_code, self.jump_codes, self.pattern_divisor
+        steps = tqdm(total=4, desc="IR index", disable=not progress, leave=False)
+        counts = _count_fan_runs(fans, cap, jump, settings.min_pattern_beams)
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        total = int(offsets[-1])
+        run_start = np.empty(total, dtype=np.int64)
+        run_length = np.empty(total, dtype=np.int64)
+        run_hash = np.empty(total, dtype=np.uint64)
+        _fill_fan_runs(fans, cap, jump, settings.min_pattern_beams, divisor, offsets[:-1], run_start, run_length, run_hash)
+        run_position = np.repeat(np.arange(len(fans), dtype=np.int64), counts)
+        steps.update()
+
+        # A pattern seen before is the same node at the pattern level; its frequency grows.
+        unique_hash, first, inverse, frequency = np.unique(
+            run_hash, return_index=True, return_inverse=True, return_counts=True
+        )
+        del unique_hash
+        pattern_count = len(first)
+        steps.update()
+
+        # Level 2: pattern -> position, frequencies summed over repeated occurrences.
+        self.pattern_positions = sp.csr_matrix(
+            (np.ones(total, dtype=np.float32), (inverse.astype(np.int64), run_position)),
+            shape=(pattern_count, len(fans)),
+        )
+        self.pattern_positions.sum_duplicates()
+        self.pattern_frequency = frequency.astype(np.int64)
+        steps.update()
+
+        # Level 1: hit -> pattern, from one representative occurrence of each pattern.
+        per_end = settings.pattern_terms_per_end
+        lengths = run_length[first]
+        term_counts = 2 * np.minimum(lengths, per_end)
+        term_offsets = np.concatenate([[0], np.cumsum(term_counts)])
+        terms = np.empty(int(term_offsets[-1]), dtype=np.int32)
+        _fill_terms_all_valid(
+            fans, run_position[first], run_start[first], lengths, per_end, divisor, self.term_bins, term_offsets[:-1], terms
+        )
+        # Built pattern by pattern, inverted once into the hit -> pattern index.
+        indptr, patterns = _invert(term_offsets, terms, self.term_count)
+        del terms
+        self.hit_patterns = HitIndex(indptr, patterns, pattern_count)
+        steps.update()
+        steps.close()
+
+    # -- cache --------------------------------------------------------------------------
+    @staticmethod
+    def cache_key(grid_map: GridMap, fan: FanModel, settings: IndexSettings) -> str:
+        """Map fingerprint + hash of every setting that changes the index."""
+        description = json.dumps(
+            {"version": CACHE_VERSION, "fan": fan.__dict__, "settings": settings.__dict__}, sort_keys=True
+        )
+        digest = hashlib.sha256(description.encode()).hexdigest()[:16]
+        return f"{grid_map.fingerprint()}_{digest}"
+
+    def save(self, path: Path) -> None:
+        """Write the index to ``path`` (``.npz``), atomically."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+        with open(tmp, "wb") as fh:
+            np.savez(
+                fh,
+                meta=np.frombuffer(
+                    json.dumps(
+                        {"version": CACHE_VERSION, "fan": self.fan.__dict__, "settings": self.settings.__dict__}
+                    ).encode(),
+                    dtype=np.uint8,
+                ),
+                positions=self.positions,
+                fans=self.fans,
+                hit_indptr=self.hit_patterns.indptr,
+                hit_patterns=self.hit_patterns.patterns,
+                pattern_count=np.array(self.hit_patterns.pattern_count, dtype=np.int64),
+                pp_indptr=self.pattern_positions.indptr,
+                pp_indices=self.pattern_positions.indices,
+                pp_data=self.pattern_positions.data,
+                pp_shape=np.array(self.pattern_positions.shape, dtype=np.int64),
+                pattern_frequency=self.pattern_frequency,
+            )
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: Path, fan: FanModel, settings: IndexSettings) -> IRIndex:
+        """Read an index written by :meth:`save`.
+
+        Raises:
+            CacheError: the file is missing, unreadable, or was built with other settings.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(bytes(data["meta"]).decode())
+                if meta != {"version": CACHE_VERSION, "fan": fan.__dict__, "settings": settings.__dict__}:
+                    raise CacheError(f"IR cache {str(path)!r} was built with other settings: {meta!r}")
+                positions = data["positions"]
+                fans = data["fans"]
+                hit_patterns = HitIndex(data["hit_indptr"], data["hit_patterns"], int(data["pattern_count"]))
+                pattern_positions = sp.csr_matrix(
+                    (data["pp_data"], data["pp_indices"], data["pp_indptr"]), shape=tuple(data["pp_shape"])
+                )
+                frequency = data["pattern_frequency"]
+        except CacheError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt file
+            raise CacheError(f"IR cache {str(path)!r} is unreadable: {type(exc).__name__}: {exc}") from exc
+        index = cls(positions, fans, fan, settings, hit_patterns, pattern_positions, frequency, 0.0, path)
+        index._check()
+        return index
+
+    def _check(self) -> None:
+        P, M = self.fans.shape
+        problems = []
+        if self.positions.shape != (P, 2) or M != self.fan.rays:
+            problems.append(f"positions {self.positions.shape} / fans {self.fans.shape} / rays {self.fan.rays}")
+        hits = self.hit_patterns
+        if hits.term_count != self.term_count or hits.indptr[-1] != hits.nnz or hits.indptr.dtype != np.int64:
+            problems.append(f"hit rows {hits.term_count} != {self.term_count} or bad row pointers")
+        elif hits.nnz and (hits.patterns.dtype != np.int32 or int(hits.patterns.max()) >= hits.pattern_count):
+            problems.append("hit index names a pattern that does not exist")
+        if self.pattern_positions.shape != (hits.pattern_count, P):
+            problems.append(f"pattern_positions {self.pattern_positions.shape}")
+        if len(self.pattern_frequency) != self.pattern_positions.shape[0]:
+            problems.append("pattern_frequency length")
+        if problems:
+            raise CacheError(f"IR cache {str(self.cache_path)!r} is inconsistent: {'; '.join(problems)}")
+
+    @classmethod
+    def load_or_build(
+        cls,
+        grid_map: GridMap,
+        fan: FanModel,
+        settings: IndexSettings,
+        *,
+        cache_dir: Path | None = None,
+        use_cache: bool = True,
+        progress: bool = True,
+    ) -> IRIndex:
+        """The cached index of this map and these settings, built (and cached) when missing or corrupt."""
+        path = None
+        if use_cache:
+            directory = (cache_dir or default_cache_dir()) / "ir"
+            path = directory / f"{cls.cache_key(grid_map, fan, settings)}.npz"
+            if path.is_file():
+                try:
+                    return cls.load(path, fan, settings)
+                except CacheError as exc:
+                    _LOG.warning("%s; rebuilding it", exc)
+        index = cls.build(grid_map, fan, settings, progress=progress)
+        if path is not None:
+            try:
+                index.save(path)
+                index.cache_path = path
+            except OSError as exc:
+                _LOG.warning("could not write the IR cache %s: %s", path, exc)
+        return index
+
+    def describe(self) -> dict[str, Any]:
+        """Sizes for reports."""
+        return {
+            "positions": int(self.fans.shape[0]),
+            "rays": int(self.fans.shape[1]),
+            "patterns": int(self.hit_patterns.pattern_count),
+            "pattern_occurrences": int(self.pattern_frequency.sum()),
+            "hit_links": int(self.hit_patterns.nnz),
+            "megabytes": round(self.nbytes() / 1e6, 1),
+            "build_seconds": round(self.build_seconds, 2),
+        }
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_terms_all_valid(fans, rows, starts, lengths, per_end, divisor, bins, offsets, out):
+    """Term ids of complete (both ends anchored) circular patterns of the fans."""
+    m = fans.shape[1]
+    for r in range(rows.shape[0]):
+        codes = fans[rows[r]]
+        o = offsets[r]
+        n = min(per_end, lengths[r])
+        for k in range(n):
+            out[o] = k * bins + codes[(starts[r] + k) % m] // divisor
+            out[o + 1] = (per_end + k) * bins + codes[(starts[r] + lengths[r] - 1 - k) % m] // divisor
+            o += 2

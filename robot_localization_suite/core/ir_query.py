@@ -1,0 +1,510 @@
+"""Queries of the IR initialiser: the live scan's hits, step 1 (positions), step 2 (poses), refinement.
+
+Aycard & Brouard, sections IV-B-3 and IV-B-4; the choices are written in
+``core/ir.py``'s module docstring. Everything here is vectorised (scipy.sparse
+products for step 1, one ``(positions x headings x beams)`` comparison for
+step 2, batched Gauss-Newton for the refinement).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from .grid_map import GridMap
+from .ir_index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
+from .scan import Scan
+from .se2 import wrap_angle
+
+__all__ = [
+    "LiveScan",
+    "resample_scan",
+    "live_pattern_terms",
+    "step1_positions",
+    "step2_poses",
+    "DistanceField",
+    "refine_poses",
+    "suppress_duplicates",
+]
+
+
+@dataclass(frozen=True)
+class LiveScan:
+    """A live scan resampled onto the fan's angular grid.
+
+    Attributes:
+        codes: ``(J,)`` byte codes (see :class:`~.ir_index.FanModel`).
+        valid: ``(J,)`` False for invalid readings (NaN, negative, below range_min).
+        offsets: ``(J,)`` beam angles in fan rays relative to the laser heading.
+        angles: ``(J,)`` beam angles [rad] relative to the laser heading.
+        ranges: ``(J,)`` ranges [m] (inf no-return, NaN invalid).
+        circular: the scan covers 360 degrees.
+    """
+
+    codes: NDArray[np.uint8]
+    valid: NDArray[np.bool_]
+    offsets: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    ranges: NDArray[np.float64]
+    circular: bool
+
+    @property
+    def hit_mask(self) -> NDArray[np.bool_]:
+        return self.valid & (self.codes != NO_RETURN)
+
+
+def resample_scan(scan: Scan, fan: FanModel) -> LiveScan:
+    """The live scan on the fan's grid: beams ``ray_step`` apart from the first beam, nearest reading each.
+
+    Readings beyond the fan's ``max_range`` become no-returns, as in the fans.
+    """
+    angles = np.asarray(scan.angles, dtype=np.float64)
+    ranges = scan.clean_ranges()
+    if angles.size > 1 and angles[-1] < angles[0]:
+        angles, ranges = angles[::-1], ranges[::-1]
+    step = fan.ray_step
+    if angles.size > 1:
+        increment = (angles[-1] - angles[0]) / (angles.size - 1)
+        span = min(angles[-1] - angles[0] + increment, 2.0 * math.pi)
+        count = max(1, int(math.floor(span / step + 1e-6)))
+        target = angles[0] + step * np.arange(count)
+        nearest = np.clip(np.rint((target - angles[0]) / increment), 0, angles.size - 1).astype(np.int64)
+    else:
+        span = 0.0
+        target = angles.copy()
+        nearest = np.zeros(angles.size, dtype=np.int64)
+    picked = ranges[nearest]
+    valid = ~np.isnan(picked)
+    codes = fan.quantise(np.where(valid, picked, np.inf))
+    far = valid & ~np.isfinite(picked)
+    picked = np.where(far | (valid & (codes == NO_RETURN)), np.inf, picked)
+    return LiveScan(
+        codes=codes,
+        valid=valid,
+        offsets=target / step,
+        angles=target,
+        ranges=picked,
+        circular=span >= 2.0 * math.pi - step / 2.0,
+    )
+
+
+def live_pattern_terms(live: LiveScan, index: IRIndex) -> tuple[list[NDArray[np.int64]], NDArray[np.int64]]:
+    """First-level hits of each anchored pattern of the live scan, and the anchors of every pattern found.
+
+    Returns:
+        terms: one array of term ids per anchored pattern (invalid readings left out).
+        anchors: ``(R,)`` anchor bits of all R patterns (0 = unanchored, unusable).
+    """
+    starts, lengths, anchors = extract_runs(
+        live.codes,
+        live.valid,
+        cap_code=index.pattern_cap_code,
+        jump_codes=index.jump_codes,
+        min_len=index.settings.min_pattern_beams,
+        circular=live.circular,
+    )
+    usable = anchors > 0
+    terms = pattern_terms(
+        live.codes,
+        live.valid,
+        starts[usable],
+        lengths[usable],
+        anchors[usable],
+        per_end=index.settings.pattern_terms_per_end,
+        divisor=index.pattern_divisor,
+        circular=live.circular,
+    )
+    return [t[t >= 0] for t in terms], anchors
+
+
+def _query_terms(term: NDArray[np.int64], bins: int, soft_weight: float) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """A live pattern's hits, and with ``soft_weight`` their neighbouring range bins."""
+    terms, weights = [term], [np.ones(len(term), dtype=np.float32)]
+    if soft_weight > 0.0:
+        for delta in (-1, 1):
+            neighbour = term % bins + delta
+            ok = (neighbour >= 0) & (neighbour < bins)
+            terms.append(term[ok] + delta)
+            weights.append(np.full(int(ok.sum()), soft_weight, dtype=np.float32))
+    return np.concatenate(terms), np.concatenate(weights)
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_common_hits(indptr, indices, terms, weights, scores, touched):
+    """Add each query hit's weight to every pattern holding it (the hit -> pattern index); returns #touched."""
+    count = 0
+    for q in range(terms.shape[0]):
+        t = terms[q]
+        w = weights[q]
+        for e in range(indptr[t], indptr[t + 1]):
+            u = indices[e]
+            if scores[u] == 0.0:
+                touched[count] = u
+                count += 1
+            scores[u] += w
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _take_best(scores, touched, count, limit, ceiling):
+    """The ``limit`` best touched patterns (ties in touch order) by a histogram of scores; resets scores."""
+    bins = 1024
+    scale = (bins - 1) / max(ceiling, 1e-9)
+    histogram = np.zeros(bins, dtype=np.int64)
+    for i in range(count):
+        histogram[int(scores[touched[i]] * scale)] += 1
+    threshold = bins - 1
+    total = 0
+    while threshold > 0 and total + histogram[threshold] < limit:
+        total += histogram[threshold]
+        threshold -= 1
+    # Everything above the threshold bin, and the first ones in it until ``limit``.
+    room = limit - total
+    n = min(limit, count)
+    ids = np.empty(n, dtype=np.int64)
+    values = np.empty(n, dtype=np.float64)
+    k = 0
+    for i in range(count):
+        u = touched[i]
+        b = int(scores[u] * scale)
+        if b > threshold or (b == threshold and room > 0):
+            if b == threshold:
+                room -= 1
+            if k < n:
+                ids[k] = u
+                values[k] = scores[u]
+                k += 1
+        scores[u] = 0.0
+    return ids[:k], values[:k]
+
+
+def step1_positions(
+    index: IRIndex,
+    terms: list[NDArray[np.int64]],
+    *,
+    patterns_per_live_pattern: int,
+    positions: int,
+    soft_weight: float,
+    weight_by_length: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Section IV-B-3: the best positions (x, y) for the live patterns.
+
+    For each live pattern, stored patterns are scored by common hits (one
+    sparse product over the hit -> pattern index), the ``patterns_per_live_pattern``
+    best kept and normalised by the best score; each position then sums the
+    normalised scores of the patterns it holds (times their frequency there).
+    With ``weight_by_length`` a live pattern's votes are also scaled by its
+    number of hits relative to the longest live pattern (a 3-beam pattern
+    then weighs less than a wall; the paper weighs them alike).
+
+    Returns:
+        position ids ``(K,)`` best first and their scores ``(K,)``.
+    """
+    terms = [t for t in terms if len(t)]
+    if not terms:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    hits = index.hit_patterns
+    pattern_count = hits.pattern_count
+    scores = np.zeros(pattern_count, dtype=np.float32)
+    touched = np.empty(pattern_count, dtype=np.int64)
+    longest = max(len(t) for t in terms)
+    cols, vals = [], []
+    for term in terms:
+        query, weights = _query_terms(term, index.term_bins, soft_weight)
+        count = _count_common_hits(hits.indptr, hits.patterns, query, weights, scores, touched)
+        if count == 0:
+            continue
+        ids, data = _take_best(scores, touched, count, patterns_per_live_pattern, float(weights.sum()))
+        weight = len(term) / longest if weight_by_length else 1.0
+        cols.append(ids)
+        vals.append(data / data.max() * weight)
+    if not cols:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    pattern_scores = np.bincount(
+        np.concatenate(cols), weights=np.concatenate(vals), minlength=pattern_count
+    )
+    chosen = np.flatnonzero(pattern_scores)
+    position_scores = index.pattern_positions[chosen].T @ pattern_scores[chosen]
+    position_scores = np.asarray(position_scores).ravel()
+    candidates = np.flatnonzero(position_scores)
+    if len(candidates) > positions:
+        candidates = candidates[np.argpartition(-position_scores[candidates], positions - 1)[:positions]]
+    order = np.argsort(-position_scores[candidates], kind="stable")
+    return candidates[order], position_scores[candidates[order]]
+
+
+def _bin_table(divisor: int) -> NDArray[np.int16]:
+    table = (np.arange(256) // divisor).astype(np.int16)
+    table[NO_RETURN] = 10_000  # never within a tolerance of a hit's bin
+    return table
+
+
+def step2_poses(
+    index: IRIndex,
+    live: LiveScan,
+    position_ids: NDArray[np.int64],
+    *,
+    heading_count: int,
+    range_bin: float,
+    tolerance_bins: int,
+    use_idf: bool,
+    no_return_terms: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Section IV-B-4: every (x, y, theta) of the positions, ranked by the summed idf of their hits.
+
+    The on-the-fly index links each live hit ``(beam, range bin)`` to the poses
+    whose expected scan (the fan rotated to theta) holds it; a hit's weight is
+    the number of indexed poses divided by the number holding it (the paper's
+    idf), or 1 without idf (plain counting).
+
+    Returns:
+        poses ``(N * H, 3)`` (x, y, theta of the laser) and scores, best first.
+    """
+    usable = live.valid & (no_return_terms | (live.codes != NO_RETURN))
+    if len(position_ids) == 0 or not usable.any():
+        return np.zeros((0, 3)), np.zeros(0)
+    fan = index.fan
+    offsets = live.offsets[usable]
+    headings = np.arange(heading_count) * (2.0 * math.pi / heading_count)
+    rays = np.rint(headings[:, None] / fan.ray_step + offsets[None, :]).astype(np.int64) % fan.rays
+    divisor = max(1, int(round(range_bin / fan.range_resolution)))
+    table = _bin_table(divisor)
+    expected = table[index.fans[position_ids][:, rays]]  # (N, H, J)
+    observed = table[live.codes[usable]]
+    match = np.abs(expected - observed) <= tolerance_bins
+    if no_return_terms:
+        match |= (expected == table[NO_RETURN]) & (observed == table[NO_RETURN])
+    flat = match.reshape(-1, match.shape[-1])
+    if use_idf:
+        frequency = flat.sum(axis=0, dtype=np.float64)
+        weights = flat.shape[0] / np.maximum(frequency, 1.0)
+    else:
+        weights = np.ones(flat.shape[1])
+    scores = flat @ weights
+    poses = np.empty((len(position_ids), heading_count, 3))
+    poses[..., :2] = index.positions[position_ids][:, None, :]
+    poses[..., 2] = wrap_angle(headings)[None, :]
+    poses = poses.reshape(-1, 3)
+    order = np.argsort(-scores, kind="stable")
+    return poses[order], scores[order]
+
+
+class DistanceField:
+    """Bilinear distance [m] to the nearest occupied cell, and its gradient, at world points."""
+
+    def __init__(self, grid_map: GridMap) -> None:
+        self.distance = np.ascontiguousarray(grid_map.distance_field(), dtype=np.float64)
+        gy, gx = np.gradient(self.distance, grid_map.resolution)
+        self.grad_x = np.ascontiguousarray(gx)
+        self.grad_y = np.ascontiguousarray(gy)
+        self.resolution = grid_map.resolution
+        self.origin = np.asarray(grid_map.origin, dtype=np.float64)
+        self.outside = float(self.distance.max())
+
+    def lookup(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(d, dd/dx, dd/dy)`` at points ``(..., 2)``; off-map points get the largest distance."""
+        return _bilinear3(self.distance, self.grad_x, self.grad_y, points, self.origin, self.resolution, self.outside)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear3_flat(d, gx, gy, px, py, ox, oy, res, outside, out_d, out_gx, out_gy):
+    h, w = d.shape
+    for i in range(px.shape[0]):
+        fx = (px[i] - ox) / res - 0.5
+        fy = (py[i] - oy) / res - 0.5
+        ix = int(math.floor(fx))
+        iy = int(math.floor(fy))
+        if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
+            out_d[i] = outside
+            out_gx[i] = 0.0
+            out_gy[i] = 0.0
+            continue
+        ax = fx - ix
+        ay = fy - iy
+        w00 = (1 - ax) * (1 - ay)
+        w10 = ax * (1 - ay)
+        w01 = (1 - ax) * ay
+        w11 = ax * ay
+        out_d[i] = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
+        out_gx[i] = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
+        out_gy[i] = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
+
+
+def _bilinear3(d, gx, gy, points, origin, res, outside):
+    shape = points.shape[:-1]
+    flat = np.ascontiguousarray(points.reshape(-1, 2))
+    out = np.empty((3, flat.shape[0]))
+    _bilinear3_flat(d, gx, gy, flat[:, 0].copy(), flat[:, 1].copy(), origin[0], origin[1], res, outside, out[0], out[1], out[2])
+    return out[0].reshape(shape), out[1].reshape(shape), out[2].reshape(shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample(d, gx, gy, x, y, ox, oy, res, outside):
+    h, w = d.shape
+    fx = (x - ox) / res - 0.5
+    fy = (y - oy) / res - 0.5
+    ix = int(math.floor(fx))
+    iy = int(math.floor(fy))
+    if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
+        return outside, 0.0, 0.0
+    ax = fx - ix
+    ay = fy - iy
+    w00 = (1 - ax) * (1 - ay)
+    w10 = ax * (1 - ay)
+    w01 = (1 - ax) * ay
+    w11 = ax * ay
+    dist = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
+    dx = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
+    dy = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
+    return dist, dx, dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine(d, gx, gy, ox, oy, res, outside, poses, bx, by, iterations, inv_two_sigma2, max_shift, max_turn, scores):
+    count = poses.shape[0]
+    beams = bx.shape[0]
+    for k in range(count):
+        x0, y0, t0 = poses[k, 0], poses[k, 1], poses[k, 2]
+        x, y, t = x0, y0, t0
+        for _ in range(iterations):
+            c, s = math.cos(t), math.sin(t)
+            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+            g0 = g1 = g2 = 0.0
+            for b in range(beams):
+                px = x + c * bx[b] - s * by[b]
+                py = y + s * bx[b] + c * by[b]
+                dist, dx, dy = _sample(d, gx, gy, px, py, ox, oy, res, outside)
+                weight = math.exp(-dist * dist * inv_two_sigma2)
+                if weight < 1e-6:
+                    continue
+                jt = dx * (-s * bx[b] - c * by[b]) + dy * (c * bx[b] - s * by[b])
+                h00 += weight * dx * dx
+                h01 += weight * dx * dy
+                h02 += weight * dx * jt
+                h11 += weight * dy * dy
+                h12 += weight * dy * jt
+                h22 += weight * jt * jt
+                g0 += weight * dx * dist
+                g1 += weight * dy * dist
+                g2 += weight * jt * dist
+            damping = 1e-6 * (h00 + h11 + h22) + 1e-12
+            h00 += damping
+            h11 += damping
+            h22 += damping
+            # 3x3 symmetric solve (Cramer's rule): H step = -g
+            c00 = h11 * h22 - h12 * h12
+            c01 = h02 * h12 - h01 * h22
+            c02 = h01 * h12 - h02 * h11
+            det = h00 * c00 + h01 * c01 + h02 * c02
+            if abs(det) < 1e-18:
+                break
+            c11 = h00 * h22 - h02 * h02
+            c12 = h01 * h02 - h00 * h12
+            c22 = h00 * h11 - h01 * h01
+            sx = -(c00 * g0 + c01 * g1 + c02 * g2) / det
+            sy = -(c01 * g0 + c11 * g1 + c12 * g2) / det
+            st = -(c02 * g0 + c12 * g1 + c22 * g2) / det
+            x += sx
+            y += sy
+            t += st
+            ddx = x - x0
+            ddy = y - y0
+            norm = math.sqrt(ddx * ddx + ddy * ddy)
+            if norm > max_shift:
+                x = x0 + ddx * max_shift / norm
+                y = y0 + ddy * max_shift / norm
+            turn = (t - t0 + math.pi) % (2.0 * math.pi) - math.pi
+            if turn > max_turn:
+                turn = max_turn
+            elif turn < -max_turn:
+                turn = -max_turn
+            t = t0 + turn
+        c, s = math.cos(t), math.sin(t)
+        total = 0.0
+        for b in range(beams):
+            px = x + c * bx[b] - s * by[b]
+            py = y + s * bx[b] + c * by[b]
+            dist, _, _ = _sample(d, gx, gy, px, py, ox, oy, res, outside)
+            total += math.exp(-dist * dist * inv_two_sigma2)
+        poses[k, 0] = x
+        poses[k, 1] = y
+        poses[k, 2] = (t + math.pi) % (2.0 * math.pi) - math.pi
+        scores[k] = total / max(beams, 1)
+
+
+def refine_poses(
+    field: DistanceField,
+    poses: NDArray[np.float64],
+    beam_angles: NDArray[np.float64],
+    beam_ranges: NDArray[np.float64],
+    *,
+    iterations: int,
+    sigma: float,
+    max_shift: float,
+    max_turn: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Align each pose's hit end-points with the map (Gauss-Newton on the distance field, one pose at a time).
+
+    Residuals are end-point distances to the nearest occupied cell, weighted by
+    ``exp(-d^2 / 2 sigma^2)`` (outliers fade out); each pose moves at most
+    ``max_shift`` [m] and ``max_turn`` [rad] from where it started so that the
+    candidates stay distinct hypotheses.
+
+    Returns:
+        refined poses ``(K, 3)`` and their scores: the mean end-point likelihood
+        ``exp(-d^2 / 2 sigma^2)`` over the hits, in ``[0, 1]``.
+    """
+    poses = np.array(poses, dtype=np.float64, copy=True).reshape(-1, 3)
+    scores = np.zeros(len(poses))
+    if len(poses) == 0 or len(beam_ranges) == 0:
+        return poses, scores
+    bx = np.ascontiguousarray(beam_ranges * np.cos(beam_angles), dtype=np.float64)
+    by = np.ascontiguousarray(beam_ranges * np.sin(beam_angles), dtype=np.float64)
+    _refine(
+        field.distance, field.grad_x, field.grad_y, float(field.origin[0]), float(field.origin[1]), field.resolution,
+        field.outside, poses, bx, by, int(iterations), 1.0 / (2.0 * sigma * sigma), float(max_shift), float(max_turn),
+        scores,
+    )
+    return poses, scores
+
+
+@numba.njit(cache=True, nogil=True)
+def _suppress(poses, distance2, angle, limit):
+    kept = np.empty(poses.shape[0], dtype=np.int64)
+    count = 0
+    for i in range(poses.shape[0]):
+        ok = True
+        for k in range(count):
+            j = kept[k]
+            dx = poses[i, 0] - poses[j, 0]
+            dy = poses[i, 1] - poses[j, 1]
+            if dx * dx + dy * dy <= distance2:
+                da = abs((poses[i, 2] - poses[j, 2] + math.pi) % (2.0 * math.pi) - math.pi)
+                if da <= angle:
+                    ok = False
+                    break
+        if ok:
+            kept[count] = i
+            count += 1
+            if count >= limit:
+                break
+    return kept[:count]
+
+
+def suppress_duplicates(
+    poses: NDArray[np.float64], *, distance: float, angle: float, limit: int
+) -> NDArray[np.int64]:
+    """Greedy non-maximum suppression of poses ranked best first: indices of the kept ones (at most ``limit``)."""
+    if len(poses) == 0:
+        return np.zeros(0, dtype=np.int64)
+    if distance <= 0.0 and angle <= 0.0:
+        return np.arange(min(limit, len(poses)))
+    return _suppress(np.ascontiguousarray(poses, dtype=np.float64), distance * distance, angle, limit)
+
+
+# Re-exported for the localizer's diagnostics.
+MAX_CODE = MAX_HIT_CODE

@@ -1,0 +1,456 @@
+"""The IR initialiser (core/ir*.py): patterns, the two-level index, steps 1 and 2, idf, cache, tracking, bad input.
+
+A small hand-made floor (12 m x 9 m, rooms, doors, pillars) and coarse
+settings (10 cm positions, 2-degree rays, 10-degree headings) keep the
+precomputation to a few seconds.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from robot_localization_suite.core.errors import CacheError
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.ir import IRLocalizer, IRSettings, recall_at_k
+from robot_localization_suite.core.ir_index import (
+    NO_RETURN,
+    FanModel,
+    HitIndex,
+    IndexSettings,
+    IRIndex,
+    extract_runs,
+    pattern_terms,
+)
+from robot_localization_suite.core.ir_query import LiveScan, step2_poses
+from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
+from robot_localization_suite.core.raycast import RayCaster
+from robot_localization_suite.core.scan import Scan
+from robot_localization_suite.core.se2 import angle_difference, compose, relative
+
+RES = 0.05
+SCAN_BEAMS = 181  # 180 degrees at 1 degree, as the Orebro log
+SCAN_RANGE = 10.0
+
+
+def floor_map() -> GridMap:
+    """12 m x 9 m: three rooms off a corridor, doors, pillars and a box; nothing symmetric."""
+    width, height = int(12 / RES), int(9 / RES)
+    data = np.zeros((height, width), dtype=np.int8)
+
+    def wall(x0: float, y0: float, x1: float, y1: float) -> None:
+        data[int(y0 / RES) : max(int(y1 / RES), int(y0 / RES) + 1), int(x0 / RES) : max(int(x1 / RES), int(x0 / RES) + 1)] = 100
+
+    wall(0, 0, 12, 0.1)
+    wall(0, 8.9, 12, 9)
+    wall(0, 0, 0.1, 9)
+    wall(11.9, 0, 12, 9)
+    wall(0, 3.0, 2.0, 3.1)  # corridor wall with doors
+    wall(3.0, 3.0, 6.5, 3.1)
+    wall(7.6, 3.0, 12, 3.1)
+    wall(4.0, 3.0, 4.1, 9)  # room dividers
+    wall(8.5, 3.0, 8.6, 6.0)
+    wall(8.5, 7.2, 8.6, 9)
+    wall(1.0, 6.0, 1.6, 6.6)  # pillar in room 1
+    wall(6.0, 7.0, 7.2, 7.5)  # desk in room 2
+    wall(10.0, 4.5, 10.4, 4.9)  # pillar in room 3
+    wall(5.0, 1.2, 5.3, 1.5)  # pillar in the corridor
+    wall(9.5, 0.8, 11.0, 1.0)  # bench in the corridor
+    return GridMap(data, RES, (0.0, 0.0))
+
+
+def settings(**changes: object) -> IRSettings:
+    base = IRSettings(
+        grid_resolution=0.1,
+        angular_resolution=math.radians(2.0),
+        heading_step=math.radians(10.0),
+        min_clearance=0.15,
+        step1_positions=150,
+        refine_candidates=100,
+        use_cache=False,
+        progress=False,
+        update_min_d=0.5,
+        update_min_a=math.radians(20.0),
+    )
+    return replace(base, **changes)
+
+
+def scan_at(grid_map: GridMap, pose: np.ndarray, *, noise: float = 0.0, rng: np.random.Generator | None = None,
+            stamp: float = 0.0) -> Scan:
+    angles = np.linspace(-math.pi / 2, math.pi / 2, SCAN_BEAMS)
+    ranges = RayCaster(grid_map, max_range=SCAN_RANGE).cast(np.asarray(pose, float), angles).astype(np.float64)
+    if noise and rng is not None:
+        finite = np.isfinite(ranges)
+        ranges[finite] += rng.normal(0.0, noise, finite.sum())
+    return Scan(stamp, angles, ranges, 0.05, SCAN_RANGE)
+
+
+@pytest.fixture(scope="module")
+def world() -> GridMap:
+    return floor_map()
+
+
+@pytest.fixture(scope="module")
+def localizer(world: GridMap) -> IRLocalizer:
+    ir = IRLocalizer(settings(), world)
+    ir._index_for(scan_at(world, np.array([2.0, 1.5, 0.0])))
+    return ir
+
+
+def close(a: np.ndarray, b: np.ndarray, distance: float = 0.5, angle: float = math.radians(25.0)) -> bool:
+    return bool(np.hypot(a[0] - b[0], a[1] - b[1]) <= distance and abs(angle_difference(a[2], b[2])) <= angle)
+
+
+# -- patterns and hits ------------------------------------------------------------------------
+def test_patterns_are_runs_between_no_returns_and_jumps_with_anchored_ends() -> None:
+    # codes: a 4-beam run, a jump of 28 codes inside the next run, a no-return, a run to the edge
+    codes = np.array([10, 10, 11, 12, NO_RETURN, 40, 41, 12, 13, NO_RETURN, 20, 21, 22], dtype=np.uint8)
+    valid = np.ones(codes.size, dtype=bool)
+    starts, lengths, anchors = extract_runs(codes, valid, cap_code=110, jump_codes=0, min_len=1, circular=False)
+    # the first run starts at the edge of the view (no delimiter), the last one ends there
+    assert starts.tolist() == [0, 5, 10] and lengths.tolist() == [4, 4, 3]
+    assert anchors.tolist() == [2, 3, 1]
+    starts, lengths, anchors = extract_runs(codes, valid, cap_code=110, jump_codes=10, min_len=1, circular=False)
+    assert starts.tolist() == [0, 5, 7, 10] and lengths.tolist() == [4, 2, 2, 3]
+    # on a full circle the edge run wraps around: 10..12 then 0..3
+    starts, lengths, anchors = extract_runs(codes, valid, cap_code=110, jump_codes=0, min_len=1, circular=True)
+    assert sorted(zip(starts.tolist(), lengths.tolist(), strict=True)) == [(5, 4), (10, 7)]
+    # readings beyond the pattern range are no-returns for patterns; min_len drops short runs
+    starts, _, _ = extract_runs(codes, valid, cap_code=30, jump_codes=0, min_len=3, circular=False)
+    assert starts.tolist() == [0, 10]
+    # nothing delimits a circle of hits: no pattern
+    assert len(extract_runs(np.full(8, 30, np.uint8), np.ones(8, bool), cap_code=110, jump_codes=0, min_len=1,
+                            circular=True)[0]) == 0
+
+
+def test_a_first_level_hit_does_not_depend_on_the_heading(world: GridMap, localizer: IRLocalizer) -> None:
+    from robot_localization_suite.core.ir_query import live_pattern_terms, resample_scan
+
+    index = localizer.index
+    assert index is not None
+    pose = np.array([6.0, 5.0, 0.3])
+    turned = pose + np.array([0.0, 0.0, math.radians(30.0)])
+    terms_a, _ = live_pattern_terms(resample_scan(scan_at(world, pose), index.fan), index)
+    terms_b, _ = live_pattern_terms(resample_scan(scan_at(world, turned), index.fan), index)
+    # a pattern fully inside both views yields the same hits (both ends delimited)
+    both = lambda terms: {tuple(t) for t in terms}  # noqa: E731
+    assert both(terms_a) & both(terms_b)
+
+
+def test_pattern_terms_count_from_each_delimited_end_only() -> None:
+    codes = np.array([NO_RETURN, 10, 20, 30, NO_RETURN, 40, 50], dtype=np.uint8)
+    valid = np.ones(codes.size, dtype=bool)
+    valid[2] = False  # an invalid reading continues the run but yields no hit
+    starts, lengths, anchors = extract_runs(codes, valid, cap_code=110, jump_codes=0, min_len=1, circular=False)
+    terms = pattern_terms(codes, valid, starts, lengths, anchors, per_end=2, divisor=1, circular=False)
+    bins = 255
+    first, last = terms
+    # run 1..3 is delimited on both sides: offsets 0, 1 from the start and from the end
+    # (offset 1 from either end is the invalid reading: no hit)
+    assert first.tolist() == [0 * bins + 10, (2 + 0) * bins + 30, -1, -1]
+    # run 5..6 ends at the edge of the view: only hits counted from its start
+    assert last.tolist() == [0 * bins + 40, 1 * bins + 50]
+
+
+# -- the index ----------------------------------------------------------------------------------
+def test_the_two_level_index_links_hits_to_patterns_to_positions(localizer: IRLocalizer) -> None:
+    index = localizer.index
+    assert index is not None
+    hits = index.hit_patterns
+    assert hits.term_count == index.term_count and hits.nnz > 0
+    # patterns are deduplicated: the frequencies add up to the occurrences
+    assert index.pattern_frequency.sum() == index.pattern_positions.sum()
+    assert index.pattern_positions.shape == (hits.pattern_count, len(index.positions))
+    # every position is a free cell away from walls
+    assert np.all(localizer.grid_map.is_free(index.positions))
+    assert index.fans.dtype == np.uint8 and index.fans.shape[1] == 180
+
+
+# Grid poses (positions on the 10 cm lattice, headings on the 10-degree steps) with a view that tells
+# them apart: the pillar of room 1, the desk of room 2, the pillar of room 3, the corridor's pillar
+# and bench, a doorway.
+GRID_POSES = [
+    (1.55, 5.05, 80.0),  # room 1 facing north: pillar ahead on the left
+    (2.95, 7.45, 190.0),  # room 1 facing west along the top wall, pillar in view
+    (6.45, 5.05, 60.0),  # room 2 facing the desk
+    (10.75, 5.75, 250.0),  # room 3 facing south past its pillar
+    (4.55, 1.95, 0.0),  # corridor facing east: pillar, then the bench far ahead
+    (7.05, 2.45, 90.0),  # corridor facing the door of room 2
+]
+
+
+def test_a_noise_free_scan_at_a_grid_pose_comes_back_top_1(world: GridMap, localizer: IRLocalizer) -> None:
+    index = localizer.index
+    assert index is not None
+    for x, y, heading in GRID_POSES:
+        pose = np.array([x, y, math.radians(heading)])
+        assert np.min(np.hypot(*(index.positions - pose[:2]).T)) < 1e-6, "the pose is on the position grid"
+        estimate = localizer.global_fix(scan_at(world, pose))
+        assert "fallback" not in estimate.details, estimate.details
+        assert close(estimate.candidates[0], pose, 0.1, math.radians(3.0)), (pose, estimate.candidates[:3])
+        assert estimate.candidates.shape[1] == 3 and len(estimate.candidates) <= localizer.settings.max_candidates
+        assert estimate.status is LocalizerStatus.AMBIGUOUS and np.allclose(estimate.pose, estimate.candidates[0])
+
+
+def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: GridMap, localizer: IRLocalizer) -> None:
+    paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
+    paper.grid_map, paper.index = world, localizer.index
+    index = localizer.index
+    assert index is not None
+    for x, y, heading in GRID_POSES:
+        pose = np.array([x, y, math.radians(heading)])
+        estimate = paper.global_fix(scan_at(world, pose))
+        # unrefined: the candidate is a grid pose itself; the true one or a neighbour
+        assert close(estimate.candidates[0], pose, 0.15, math.radians(10.5)), (pose, estimate.candidates[:3])
+
+
+def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: GridMap, localizer: IRLocalizer) -> None:
+    # continuous poses, 2 cm range noise; correct = 0.5 m and 25 degrees (the paper's criterion)
+    rng = np.random.default_rng(7)
+    poses = world.sample_free_poses(400, rng)
+    cells = world.world_to_cell(poses[:, :2])
+    poses = poses[world.distance_field()[cells[:, 1], cells[:, 0]] > 0.3][:30]
+    recalls = [recall_at_k(localizer.global_fix(scan_at(world, p, noise=0.02, rng=rng)).candidates, p, (1, 10))
+               for p in poses]
+    # this floor repeats itself (corridor ends, bare room corners): measured 0.80 / 1.00 here
+    assert np.mean([r[1] for r in recalls]) >= 0.65
+    assert np.mean([r[10] for r in recalls]) >= 0.9
+
+
+def _hand_index(fans: np.ndarray) -> IRIndex:
+    """An index over hand-made fans (no map): step 2 reads only positions and fans."""
+    count = len(fans)
+    terms = 2 * IndexSettings().pattern_terms_per_end * (254 // 2 + 1)  # 10 cm bins of 5 cm codes
+    return IRIndex(
+        positions=np.column_stack([np.arange(count, dtype=float), np.zeros(count)]),
+        fans=fans.astype(np.uint8),
+        fan=FanModel(rays=fans.shape[1], max_range=10.0, range_resolution=0.05),
+        settings=IndexSettings(),
+        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.int32), 0),
+        pattern_positions=sp.csr_matrix((0, count), dtype=np.float32),
+        pattern_frequency=np.zeros(0, dtype=np.int64),
+    )
+
+
+def test_idf_ranks_the_right_pose_above_a_decoy_that_shares_the_common_patterns() -> None:
+    x = NO_RETURN
+    live_codes = np.array([10, 20, 30, 30, 30, 30, 40, 50], dtype=np.uint8)
+    fans = np.array(
+        [
+            [10, 20, 99, 99, 99, 99, 40, 50],  # the true position: 4 hits, three of them held by no other pose
+            [10, 99, 30, 30, 30, 30, 99, 99],  # decoy: 5 hits, all common
+            *[[99, 99, 30, 30, 30, 30, x, 99]] * 6,  # the corridor-like rest: the common 30s
+        ]
+    )
+    live = LiveScan(
+        codes=live_codes,
+        valid=np.ones(8, dtype=bool),
+        offsets=np.arange(8, dtype=float),
+        angles=np.arange(8) * (2 * math.pi / 8),
+        ranges=live_codes * 0.05,
+        circular=True,
+    )
+    index = _hand_index(fans)
+    common = dict(heading_count=1, range_bin=0.05, tolerance_bins=0, no_return_terms=False)
+    counted, count_scores = step2_poses(index, live, np.arange(len(fans)), use_idf=False, **common)
+    weighted, idf_scores = step2_poses(index, live, np.arange(len(fans)), use_idf=True, **common)
+    assert counted[0][0] == 1.0 and count_scores[0] == 5  # plain counting prefers the decoy
+    assert weighted[0][0] == 0.0  # idf: rare hits outweigh common ones
+    # the paper's weight: indexed poses / poses holding the hit; beam 1 is held by pose 0 only
+    assert idf_scores[0] == pytest.approx(8 / 2 + 8 + 8 + 8)
+
+
+# -- cache --------------------------------------------------------------------------------------
+def test_a_reloaded_cache_gives_identical_rankings(world: GridMap, tmp_path: Path) -> None:
+    cached = settings(use_cache=True, cache_dir=str(tmp_path), step1_positions=80, refine_candidates=40)
+    first = IRLocalizer(cached, world)
+    scans = [scan_at(world, np.array(p)) for p in ([2.0, 1.5, 0.4], [6.3, 5.2, 2.0], [10.2, 7.0, -1.0])]
+    before = [first.global_fix(s) for s in scans]
+    assert first.index is not None and first.index.build_seconds > 0.0
+    assert first.index.cache_path is not None and first.index.cache_path.is_file()
+    assert first.index.cache_path.parent.parent == tmp_path
+    second = IRLocalizer(cached, world)
+    after = [second.global_fix(s) for s in scans]
+    assert second.index is not None and second.index.build_seconds == 0.0  # loaded, not rebuilt
+    for a, b in zip(before, after, strict=True):
+        np.testing.assert_array_equal(a.candidates, b.candidates)
+        np.testing.assert_array_equal(a.candidate_weights, b.candidate_weights)
+
+
+def test_a_corrupt_cache_is_rebuilt_with_a_warning(world: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    cached = settings(use_cache=True, cache_dir=str(tmp_path), step1_positions=80, refine_candidates=40)
+    scan = scan_at(world, np.array([6.3, 5.2, 2.0]))
+    reference = IRLocalizer(cached, world).global_fix(scan)
+    path = next((tmp_path / "ir").glob("*.npz"))
+    for damage in (b"not a numpy archive", path.read_bytes()[: path.stat().st_size // 2]):
+        path.write_bytes(damage)
+        with pytest.raises(CacheError, match="unreadable"):
+            IRIndex.load(path, IRLocalizer(cached, None).settings.fan_model(math.radians(1.0), SCAN_RANGE),
+                         cached.index_settings())
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="robot_localization_suite.core.ir_index"):
+            rebuilt = IRLocalizer(cached, world)
+            estimate = rebuilt.global_fix(scan)
+        assert any("rebuilding" in record.getMessage() for record in caplog.records)
+        assert rebuilt.index is not None and rebuilt.index.build_seconds > 0.0
+        np.testing.assert_array_equal(estimate.candidates, reference.candidates)
+        # and the rebuilt file is good again
+        assert IRIndex.load(path, rebuilt.index.fan, cached.index_settings()).fans.shape == rebuilt.index.fans.shape
+
+
+def test_the_cache_key_follows_the_map_and_the_settings(world: GridMap) -> None:
+    fan = FanModel(rays=180, max_range=10.0, range_resolution=0.05)
+    key = IRIndex.cache_key(world, fan, IndexSettings())
+    assert key == IRIndex.cache_key(world, fan, IndexSettings())
+    assert key != IRIndex.cache_key(world, fan, IndexSettings(split_at_jump=0.0))
+    assert key != IRIndex.cache_key(world, replace(fan, rays=360), IndexSettings())
+    moved = GridMap(world.data, world.resolution, (1.0, 0.0))
+    assert key != IRIndex.cache_key(moved, fan, IndexSettings())
+
+
+# -- bad input ----------------------------------------------------------------------------------
+def test_a_scan_with_no_pattern_returns_no_candidates_and_says_why(world: GridMap, localizer: IRLocalizer) -> None:
+    angles = np.linspace(-math.pi / 2, math.pi / 2, SCAN_BEAMS)
+    nothing = Scan(1.0, angles, np.full(SCAN_BEAMS, np.inf), 0.05, SCAN_RANGE)
+    estimate = localizer.global_fix(nothing)
+    assert len(estimate.candidates) == 0 and estimate.status is LocalizerStatus.LOST
+    assert "every reading is a no-return" in estimate.details["reason"]
+    invalid = Scan(1.0, angles, np.full(SCAN_BEAMS, np.nan), 0.05, SCAN_RANGE)
+    assert "no valid reading" in localizer.global_fix(invalid).details["reason"]
+    # a wall at one range everywhere, nothing delimiting it: no pattern, step 2 over a coarse lattice instead
+    flat = Scan(1.0, angles, np.full(SCAN_BEAMS, 2.0), 0.05, SCAN_RANGE)
+    assert "no pattern" in localizer.global_fix(flat).details["fallback"]
+    strict = IRLocalizer(settings(fallback_positions=0), None)
+    strict.grid_map, strict.index = world, localizer.index
+    refused = strict.global_fix(flat)
+    assert len(refused.candidates) == 0 and "no delimiting no-return" in refused.details["reason"]
+    # the tracker answers the same scan without a crash and stays uninitialised
+    fresh = IRLocalizer(settings(), None)
+    fresh.grid_map, fresh.index = world, localizer.index
+    fresh._field, fresh._occupied_near = localizer._field, localizer._occupied_near
+    out = fresh.on_scan(nothing)
+    assert out is not None and len(out.candidates) == 0 and not fresh.initialized
+
+
+def test_invalid_readings_are_skipped(world: GridMap, localizer: IRLocalizer) -> None:
+    pose = np.array([2.5, 5.0, 1.0])
+    scan = scan_at(world, pose)
+    ranges = scan.ranges.copy()
+    ranges[::7] = np.nan
+    ranges[3::11] = -1.0
+    ranges[5::13] = 0.01  # below range_min
+    damaged = Scan(scan.stamp, scan.angles, ranges, scan.range_min, scan.range_max)
+    estimate = localizer.global_fix(damaged)
+    assert close(estimate.candidates[0], pose, 0.2, math.radians(5.0))
+
+
+def test_settings_refuse_bad_values_naming_them() -> None:
+    with pytest.raises(ValueError, match="grid_resolution"):
+        IRSettings(grid_resolution=0.0)
+    with pytest.raises(ValueError, match="particle_count"):
+        IRSettings(particle_count=0)
+    with pytest.raises(ValueError, match="lost_score_threshold"):
+        IRSettings(lost_score_threshold=1.5)
+    with pytest.raises(ValueError, match="pattern_range_bin"):
+        IRSettings(pattern_range_bin=0.01)
+    with pytest.raises(ValueError, match="max_range"):
+        FanModel(rays=360, max_range=20.0, range_resolution=0.05)  # beyond one-byte codes
+
+
+def test_recall_at_k_counts_the_first_correct_candidate() -> None:
+    truth = np.array([1.0, 2.0, 0.0])
+    candidates = np.array([[5.0, 5.0, 0.0], [1.3, 2.0, 3.0], [1.3, 2.0, 0.3]])
+    assert recall_at_k(candidates, truth, (1, 2, 3)) == {1: False, 2: False, 3: True}
+    assert recall_at_k(np.zeros((0, 3)), truth, (1,)) == {1: False}
+
+
+# -- tracking -----------------------------------------------------------------------------------
+def _drive(world: GridMap, waypoints: list[tuple[float, float]], step: float = 0.2) -> np.ndarray:
+    """Poses every ``step`` metres along straight legs between waypoints, heading along the leg."""
+    poses = []
+    for (x0, y0), (x1, y1) in zip(waypoints[:-1], waypoints[1:], strict=True):
+        length = math.hypot(x1 - x0, y1 - y0)
+        heading = math.atan2(y1 - y0, x1 - x0)
+        for s in np.arange(0.0, length, step):
+            poses.append([x0 + s * math.cos(heading), y0 + s * math.sin(heading), heading])
+    return np.array(poses)
+
+
+def _run(localizer: Localizer, world: GridMap, truth: np.ndarray, rng: np.random.Generator, odom_origin: np.ndarray,
+         odom_truth: np.ndarray | None = None) -> list:
+    """Feed odometry (truth in another frame, 2 % noise on each step) and noisy scans; the estimates."""
+    odom_truth = truth if odom_truth is None else odom_truth
+    odom = odom_origin.copy()
+    estimates = []
+    for k in range(len(truth)):
+        if k:
+            step = relative(odom_truth[k - 1], odom_truth[k])
+            step[:2] *= 1.0 + rng.normal(0.0, 0.02)
+            step[2] += rng.normal(0.0, 0.01)
+            odom = compose(odom, step)
+        localizer.on_odometry(0.1 * k, odom)
+        estimates.append(localizer.on_scan(scan_at(world, truth[k], noise=0.02, rng=rng, stamp=0.1 * k)))
+    return estimates
+
+
+def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLocalizer) -> None:
+    tracker = IRLocalizer(settings(seed=1), None)
+    tracker.grid_map, tracker.index = world, localizer.index
+    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    assert isinstance(tracker, Localizer) and isinstance(tracker, GlobalFixer)
+    # from room 1 through its door into the corridor, east, a U-turn, back west
+    truth = _drive(world, [(2.5, 7.5), (2.5, 2.0), (9.0, 2.0), (9.0, 2.4), (6.0, 2.3)])
+    estimates = _run(tracker, world, truth, np.random.default_rng(11), np.array([3.0, -2.0, 1.0]))
+    first = estimates[0]
+    assert first.details["phase"] == "initialization" and len(first.candidates) > 1
+    assert sum(1 for e in estimates if e.details.get("updated")) >= 15
+    # after the first third of the drive every estimate is correct and most are fine
+    tail = len(estimates) // 3
+    errors = np.array([math.hypot(*(e.pose[:2] - truth[k][:2])) for k, e in enumerate(estimates)])[tail:]
+    turns = np.array([abs(angle_difference(e.pose[2], truth[k][2])) for k, e in enumerate(estimates)])[tail:]
+    assert errors.max() < 0.5 and np.median(errors) < 0.2, errors
+    assert np.degrees(turns.max()) < 10.0
+    assert estimates[-1].status is LocalizerStatus.LOCALIZED
+    assert estimates[-1].candidates.shape == (tracker.settings.particle_count, 3)
+    assert all("initialized_because" not in e.details for e in estimates[1:])
+
+
+def test_a_kidnapped_tracker_finds_itself_lost_and_reinitialises_by_itself(world: GridMap, localizer: IRLocalizer) -> None:
+    tracker = IRLocalizer(settings(seed=6, lost_update_count=2), None)
+    tracker.grid_map, tracker.index = world, localizer.index
+    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    before = _drive(world, [(1.0, 1.5), (8.0, 1.6)])
+    after = _drive(world, [(5.5, 4.0), (5.5, 8.0), (2.5, 8.0)])
+    # odometry sees one continuous drive; the scans jump from the corridor to room 2
+    odom_truth = np.vstack([before, compose(before[-1], relative(after[0], after))])
+    estimates = _run(tracker, world, np.vstack([before, after]), np.random.default_rng(8), np.zeros(3), odom_truth)
+    reasons = [e.details.get("initialized_because") for e in estimates]
+    assert reasons[0] == "start"
+    assert "lost" in reasons[len(before) :]
+    final = estimates[-1]
+    assert math.hypot(*(final.pose[:2] - after[-1][:2])) < 0.3
+
+
+def test_reinitialize_and_initial_pose(world: GridMap, localizer: IRLocalizer) -> None:
+    tracker = IRLocalizer(settings(seed=2), None)
+    tracker.grid_map, tracker.index = world, localizer.index
+    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    pose = np.array([6.0, 5.0, 0.5])
+    tracker.set_initial_pose(pose, np.diag([0.1**2, 0.1**2, 0.05**2]))
+    assert tracker.initialized and tracker.particles is not None
+    assert np.allclose(tracker.particles.mean(axis=0)[:2], pose[:2], atol=0.1)
+    estimate = tracker.on_scan(scan_at(world, pose))
+    assert estimate is not None and estimate.details["phase"] == "tracking"
+    tracker.request_nomotion_update()
+    updated = tracker.on_scan(scan_at(world, pose))
+    assert updated is not None and updated.details["updated"]
+    tracker.reinitialize()
+    assert not tracker.initialized
+    again = tracker.on_scan(scan_at(world, pose))
+    assert again is not None and again.details["phase"] == "initialization"
