@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from robot_localization_suite.core.errors import CacheError
+from robot_localization_suite.core.errors import CacheError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ir import IRLocalizer, IRSettings, recall_at_k
 from robot_localization_suite.core.ir_index import (
@@ -330,12 +330,20 @@ def test_a_scan_with_no_pattern_returns_no_candidates_and_says_why(world: GridMa
     strict.grid_map, strict.index = world, localizer.index
     refused = strict.global_fix(flat)
     assert len(refused.candidates) == 0 and "no delimiting no-return" in refused.details["reason"]
-    # the tracker answers the same scan without a crash and stays uninitialised
+    # the tracker refuses the same scan with the reason (the adapter logs it and skips the scan) ...
     fresh = IRLocalizer(settings(), None)
     fresh.grid_map, fresh.index = world, localizer.index
     fresh._field, fresh._occupied_near = localizer._field, localizer._occupied_near
-    out = fresh.on_scan(nothing)
-    assert out is not None and len(out.candidates) == 0 and not fresh.initialized
+    with pytest.raises(ScanError, match="every reading is a no-return"):
+        fresh.on_scan(nothing)
+    assert not fresh.initialized
+    # ... and, once tracking, keeps its particles when a scan has no hit to score them with
+    fresh.set_initial_pose(np.array([6.0, 5.0, 0.5]), np.diag([0.01, 0.01, 0.01]))
+    before = fresh.particles.copy()
+    fresh.request_nomotion_update()
+    with pytest.raises(ScanError, match="no hit"):
+        fresh.on_scan(nothing)
+    np.testing.assert_array_equal(fresh.particles, before)
 
 
 def test_invalid_readings_are_skipped(world: GridMap, localizer: IRLocalizer) -> None:

@@ -427,11 +427,18 @@ class IRLocalizer:
         self._update_requested = True
 
     def on_scan(self, scan: Scan) -> Estimate | None:
-        """Initialise from this scan when needed, else track; an estimate for every usable scan."""
+        """Initialise from this scan when needed, else track; an estimate for every usable scan.
+
+        Raises:
+            ScanError: the scan cannot initialise (no pattern: the reason says why) or has no hit
+                to score the particles with; the state is unchanged (the adapter logs and skips it).
+        """
         if self.grid_map is None:
             return None
         if not self.initialized:
             return self._initialise(scan, reason="start")
+        if not scan.hit_mask.any():
+            raise ScanError(f"scan at {scan.stamp:.3f} s has no hit to score the particles with")
         if self._odom is not None and self._particles_odom is not None:
             delta = odometry_delta(self._particles_odom, self._odom)
             moved = delta.trans >= self.settings.update_min_d or abs(delta.rotation) >= self.settings.update_min_a
@@ -608,11 +615,16 @@ class IRLocalizer:
         )
 
     def _initialise(self, scan: Scan, *, reason: str) -> Estimate:
+        """Global fix and particles from it.
+
+        Raises:
+            ScanError: the scan gives no candidate (the reason says why); the next scan tries again.
+        """
         estimate = self.global_fix(scan)
         estimate.details["initialized_because"] = reason
         if len(estimate.candidates) == 0:
             self._reset_tracking()
-            return estimate
+            raise ScanError(f"IR initialisation from the scan at {scan.stamp:.3f} s: {estimate.details['reason']}")
         count = self.settings.particle_count
         candidates = estimate.candidates
         # Drawn from the ranked list with probability 1 / rank (the ranking is the evidence: the first

@@ -1,0 +1,118 @@
+"""The ir_initializer node module: parameters -> IRSettings, config file, an in-process node fed messages."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from test_ir import _drive, floor_map, scan_at
+
+from robot_localization_suite import registry
+from robot_localization_suite.core.ir import IRLocalizer, IRSettings
+from robot_localization_suite.core.localizer import LocalizerStatus
+from robot_localization_suite.core.se2 import compose, relative
+from robot_localization_suite.nodes import ir_initializer
+from robot_localization_suite.ros import conversions
+
+
+def test_make_localizer_from_the_registry_params_gives_the_settings_defaults() -> None:
+    localizer = ir_initializer.make_localizer(registry.localizer_params("ir_initializer"))
+    assert isinstance(localizer, IRLocalizer)
+    assert localizer.settings == IRSettings()
+    assert "ir_initializer" in registry.available_localizers()
+
+
+def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
+    names = [spec.name for spec in ir_initializer.PARAMS]
+    assert len(names) == len(set(names))
+    assert set(names) == {field.name for field in fields(IRSettings)}
+    config = yaml.safe_load((repo_root / "config" / "ir_initializer.yaml").read_text())["ir_initializer"]["ros__parameters"]
+    assert set(config) == set(names)
+    defaults = IRSettings()
+    for spec in ir_initializer.PARAMS:
+        assert spec.description
+        assert type(config[spec.name]) is type(spec.default), spec.name
+        assert config[spec.name] == getattr(defaults, spec.name), spec.name
+
+
+def test_parameter_values_are_converted_and_checked() -> None:
+    settings = ir_initializer.settings_from_params({"update_min_d": 2, "particle_count": 50, "use_idf": False, "x": 1})
+    assert settings.update_min_d == 2.0 and isinstance(settings.update_min_d, float)
+    assert settings.particle_count == 50 and not settings.use_idf
+    with pytest.raises(ValueError, match="heading_step"):
+        ir_initializer.make_localizer({"heading_step": 0.0})
+
+
+def _scan_msg(scan):  # noqa: ANN001, ANN202
+    return conversions.scan_to_msg(
+        scan.stamp, "laser", angle_min=scan.angles[0], angle_increment=scan.angles[1] - scan.angles[0],
+        ranges=scan.ranges, range_min=scan.range_min, range_max=scan.range_max,
+    )
+
+
+def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from std_srvs.srv import Empty
+
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    world = floor_map()
+    truth = _drive(world, [(2.5, 7.5), (2.5, 2.0), (7.0, 2.0)])
+    odom_origin = np.array([3.0, -2.0, 1.0])
+    overrides = {
+        "grid_resolution": 0.1, "angular_resolution": math.radians(2.0), "heading_step": math.radians(10.0),
+        "step1_positions": 150, "refine_candidates": 100, "update_min_d": 0.5, "progress": False,
+        "cache_dir": str(tmp_path), "seed": 1,
+    }
+    args = ["ir_initializer", "--ros-args"]
+    for name, value in overrides.items():
+        args += ["-p", f"{name}:={value}"]
+    rclpy.init(args=args)
+    node = LocalizerNode(ir_initializer.NODE_NAME, ir_initializer.PARAMS, ir_initializer.make_localizer)
+    published = []
+    try:
+        for spec in ir_initializer.PARAMS:
+            assert node.has_parameter(spec.name), spec.name
+        localizer = node.localizer
+        assert localizer.settings.grid_resolution == 0.1 and localizer.settings.cache_dir == str(tmp_path)
+        node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(world, 0.0))
+        rng = np.random.default_rng(3)
+        for k, pose in enumerate(truth):
+            odom = compose(odom_origin, relative(truth[0], pose))
+            node.adapter.on_odom_msg(conversions.odometry_to_msg(0.1 * k, odom, frame_id="odom"))
+            node._on_scan(_scan_msg(scan_at(world, pose, noise=0.02, rng=rng, stamp=0.1 * k)))
+        # bad input on the same path: a scan of NaNs (skipped by the adapter), a scan with no return at all
+        node._on_scan(conversions.scan_to_msg(100.0, "laser", angle_min=-1.0, angle_increment=0.01,
+                                              ranges=np.full(200, np.nan), range_min=0.1, range_max=10.0))
+        node._on_scan(conversions.scan_to_msg(101.0, "laser", angle_min=-1.0, angle_increment=0.01,
+                                              ranges=np.full(200, np.inf), range_min=0.1, range_max=10.0))
+        assert len(published) == len(truth)
+        first, last = published[0], published[-1]
+        # after the initialisation: ranked candidates, the best first
+        assert first.estimate.details["phase"] == "initialization"
+        assert len(first.candidates.poses) == len(first.estimate.candidates) <= localizer.settings.max_candidates
+        assert first.candidates.poses[0].position.x == pytest.approx(first.estimate.candidates[0][0])
+        # afterwards: the particles, localized on the truth
+        assert last.estimate.status is LocalizerStatus.LOCALIZED
+        assert len(last.candidates.poses) == localizer.settings.particle_count
+        assert np.hypot(*(last.estimate.pose[:2] - truth[-1][:2])) < 0.3
+        assert last.pose.header.frame_id == "map"
+        values = {kv.key: kv.value for kv in last.diagnostics.status[0].values}
+        assert "spread_m" in values or "particles" in values
+        assert any(path.suffix == ".npz" for path in (tmp_path / "ir").iterdir())  # the index was cached
+
+        # the services, through their callbacks
+        node._on_nomotion(Empty.Request(), Empty.Response())
+        assert localizer._update_requested
+        node._on_reinitialize(Empty.Request(), Empty.Response())
+        assert not localizer.initialized
+        node._on_scan(_scan_msg(scan_at(world, truth[-1], stamp=200.0)))
+        assert published[-1].estimate.details["phase"] == "initialization"
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
