@@ -69,8 +69,16 @@ Choices where the paper is silent or ambiguous (written down as the house asks):
   one cell plus the map's error. Simulated bags cast rays on the very grid
   given to the localizer, so ``map_margin = 0`` is already exact for them.
 * **Two constraints added to the paper's (both sound).** (a) The laser
-  stands in a cell the map does not mark occupied (free or unknown, within
-  ``map_margin``): ``[x] x [y]`` is contracted to the hull of such cells.
+  stands in a cell the map marks free (within ``map_margin``): ``[x] x [y]``
+  is contracted to the hull of such cells. A map built from the robot's own
+  scans marks the laser's cell free (every beam starts there), and so does a
+  simulated map; for maps whose free space is not marked,
+  ``laser_in_free_cells = False`` accepts any cell not marked occupied. Without
+  it, poses in the unknown part of a SLAM map (Intel: 63 % of the cells,
+  fr101: 83 %) agree with every scan, since every beam ends on "an obstacle"
+  there. Real maps stay hard even so: from a free cell facing unknown space a
+  180-degree scan agrees with every reading, and one Intel scan leaves more
+  than a million boxes (sound; motion prunes them, ``max_boxes`` bounds the work).
   (b) A beam meets no obstacle before its end: ``free_space_samples`` points
   short of the shortest possible range (0.5, 1.5, 3.5, 7.5 ... cells back)
   must not lie, for every pose of the box, in cells that are certainly
@@ -119,7 +127,13 @@ Choices where the paper is silent or ambiguous (written down as the house asks):
 Outputs: ``pose`` is the centre of the hull of the boxes, ``covariance`` that
 of a uniform distribution over the hull (``width^2 / 12`` per axis),
 ``candidates`` the box centres ranked by consistent beams then by volume,
-``details["boxes"]`` a ``(K, 3, 2)`` array of ``[lo, hi]`` for x, y, theta.
+``details["boxes"]`` a ``(K, 3, 2)`` array of ``[lo, hi]`` for x, y, theta
+(also ``box_count``, ``hull_width_x/y/theta``, ``valid_beams``,
+``contractions``, ``limited``, ``restarted``, ``warning``). While the boxes form
+several clusters (status AMBIGUOUS) the hull centre may lie between them; the
+covariance says so. With no box left (bounds broken even for the whole map)
+the pose is NaN and the status LOST; the next scan starts from the whole map.
+:meth:`IntervalLocalizer.global_fix` instead returns the best-ranked box centre.
 
 Interval library: compiled numba, not codac. codac 2.1.2 (PyPI) offers
 intervals, ``CtcInverse`` (forward-backward on an analytic function) and
@@ -127,14 +141,15 @@ intervals, ``CtcInverse`` (forward-backward on an analytic function) and
 from our summed-area table anyway, called from Python per box and beam. Measured
 with ``python -m robot_localization_suite.tools.ial_benchmark --codac`` (office
 map 400 x 400 cells, 36 beams, eps 5 cm, 5 outliers, 2 shared cores, median of
-20 poses): contracting one tracking-size box by every beam costs 1.85 ms with
-codac (one ``CtcInverse`` per beam, built once per scan) and 9 us with
-:func:`.ial_kernels.contract_box`, 200 times less; vectorised numpy over boxes
-would still pay per-box Python work for the hull queries and the depth-first
-bisection. With numba, the first global iteration took 56 ms (29 ms to 1.1 s;
-the paper: 21-45 s on a 10 m x 4.7 m map) and a tracking iteration from a
-0.5 m x 0.5 m x 10 degree box 0.44 ms (the paper: 0.306 s), the truth inside
-the boxes in 20 of 20 trials each. The kernels are serial: a numba parallel
+20 poses, two runs): contracting one tracking-size box by every beam costs
+1.85-2.5 ms with codac (one ``CtcInverse`` per beam, built once per scan) and
+9 us with :func:`.ial_kernels.contract_box`, 200-270 times less; vectorised
+numpy over boxes would still pay per-box Python work for the hull queries and
+the depth-first bisection. With numba, the first global iteration took 56-87 ms
+(median; 30 ms to 1.7 s, the slowest hitting ``max_boxes``; the paper: 21-45 s
+on a 10 m x 4.7 m map) and a tracking iteration from a 0.5 m x 0.5 m x
+10 degree box 0.44-0.47 ms (the paper: 0.306 s), the truth inside the boxes in
+20 of 20 trials each. The kernels are serial: a numba parallel
 launch costs about 11 ms here (DESIGN.md), more than a tracking iteration,
 and a depth-first paving in one thread is deterministic.
 """
@@ -198,6 +213,8 @@ class IALSettings:
             cell for SLAM maps, DESIGN.md).
         free_space_samples: points checked before each beam's end, 0.5, 1.5, 3.5, ... cells back
             (doubling), that must not lie in certain obstacles (our addition; 0 turns it off).
+        laser_in_free_cells: the laser stands in a cell the map marks free (within ``map_margin``);
+            False: in any cell not marked occupied (for maps whose free space is not marked).
         odom_relative_translation, odom_absolute_translation: bound of each step's
             translation [-, m] (paper 5.2: odometry error 10 % of the motion).
         odom_relative_rotation, odom_absolute_rotation: bound of each step's rotations [-, rad].
@@ -225,6 +242,7 @@ class IALSettings:
     min_box_width_theta: float = math.radians(1.0)
     map_margin: float = 0.0
     free_space_samples: int = 9
+    laser_in_free_cells: bool = True
     odom_relative_translation: float = 0.1
     odom_absolute_translation: float = 0.01
     odom_relative_rotation: float = 0.1
@@ -280,6 +298,8 @@ class IALSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
                 raise ValueError(f"IAL setting {name} must be an integer >= {minimum}, got {value!r}")
+        if not isinstance(self.laser_in_free_cells, bool):
+            raise ValueError(f"IAL setting laser_in_free_cells must be true or false, got {self.laser_in_free_cells!r}")
         if self.max_outliers >= self.max_beams:
             raise ValueError(
                 f"IAL setting max_outliers ({self.max_outliers!r}) must be below max_beams ({self.max_beams!r})"
@@ -299,7 +319,7 @@ class ObstacleGrid:
         MapError: the map is too large for the arithmetic error budget.
     """
 
-    def __init__(self, grid_map: GridMap, *, margin: float = 0.0) -> None:
+    def __init__(self, grid_map: GridMap, *, margin: float = 0.0, laser_in_free_cells: bool = True) -> None:
         x_min, x_max, y_min, y_max = grid_map.extent
         if max(abs(x_min), abs(x_max), abs(y_min), abs(y_max)) > MAX_COORDINATE:
             raise MapError(
@@ -310,8 +330,8 @@ class ObstacleGrid:
         self.resolution = float(grid_map.resolution)
         self.obstacle = grid_map.occupied_mask | grid_map.unknown_mask
         self.sat = summed_area_table(self.obstacle)
-        # Where the laser may stand: any cell not marked occupied (unknown may be free too).
-        self.free_sat = summed_area_table(~grid_map.occupied_mask)
+        # Where the laser may stand: free cells, or any cell not marked occupied.
+        self.free_sat = summed_area_table(grid_map.free_mask if laser_in_free_cells else ~grid_map.occupied_mask)
         # Cells surely inside an obstacle: occupied cells eroded by twice the map margin.
         occupied = grid_map.occupied_mask
         erosion = int(math.ceil(2.0 * margin / self.resolution - 1e-9)) if margin > 0.0 else 0
@@ -475,7 +495,9 @@ class IntervalLocalizer:
 
     # -- Localizer protocol -----------------------------------------------------------
     def set_map(self, grid_map: GridMap) -> None:
-        self.obstacles = ObstacleGrid(grid_map, margin=self.settings.map_margin)
+        self.obstacles = ObstacleGrid(
+            grid_map, margin=self.settings.map_margin, laser_in_free_cells=self.settings.laser_in_free_cells
+        )
         self.reinitialize()
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:

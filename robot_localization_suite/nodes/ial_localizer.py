@@ -56,6 +56,8 @@ PARAMS = (
               0.0, 10.0),
     ParamSpec("free_space_samples", _D.free_space_samples,
               "points before each beam's end that must not be inside certain obstacles (0: off)", 0, 64),
+    ParamSpec("laser_in_free_cells", _D.laser_in_free_cells,
+              "the laser stands in a cell the map marks free; false: in any cell not marked occupied"),
     ParamSpec("odom_relative_translation", _D.odom_relative_translation,
               "odometry bound: translation error per step, relative part (paper: 0.1)", 0.0, 0.99),
     ParamSpec("odom_absolute_translation", _D.odom_absolute_translation,
