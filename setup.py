@@ -51,6 +51,8 @@ setup(
             "ros-jazzy-common-interfaces==5.3.6",
             "ros-jazzy-rmw-fastrtps-cpp==8.4.3",
         ],
+        # Only for tools/ial_benchmark.py --codac: the measured comparison behind core/ial.py's choice of numba.
+        "compare": ["codac==2.1.2"],
         "test": [
             "pytest==9.2.0",
             "hypothesis==6.170.15",
