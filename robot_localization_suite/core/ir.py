@@ -56,7 +56,8 @@ Interpretation of the paper (the choices it leaves open, written down)
   ``no_return_terms``); a pose holds it when its expected reading for that
   beam is within ``step2_tolerance_bins`` bins. The weight of a hit is the
   paper's idf, the number of indexed poses divided by the number of poses
-  holding it; a pose's score is the sum of the weights of the hits it holds
+  holding it (``idf_log``: its logarithm, the usual idf of information
+  retrieval); a pose's score is the sum of the weights of the hits it holds
   (``use_idf = False``: plain counting, the paper's Table II ablation).
 * **Beyond the paper** (the issue asks for a better list; each is a switch):
   the ``refine_candidates`` best poses of step 2 are aligned to the map by a
@@ -143,7 +144,8 @@ class IRSettings:
     Query:
         heading_step [rad] (paper: 5 degrees), patterns_per_live_pattern and
         step1_positions (the paper's N, unstated), soft_bin_weight, weight_patterns_by_length,
-        step2_range_bin [m], step2_tolerance_bins, use_idf (paper: True), no_return_terms,
+        step2_range_bin [m], step2_tolerance_bins, use_idf (paper: True), idf_log (False: the
+        paper's ratio; True: its logarithm, the usual idf), no_return_terms,
         refine_candidates (0 = the paper's ranking), refine_iterations, refine_sigma [m],
         refine_max_shift [m], refine_max_turn [rad], nms_distance [m], nms_angle [rad],
         max_candidates, fallback_positions (a scan step 1 cannot place, hits but no delimited
@@ -186,6 +188,7 @@ class IRSettings:
     step2_range_bin: float = 0.10
     step2_tolerance_bins: int = 1
     use_idf: bool = True
+    idf_log: bool = False
     no_return_terms: bool = True
     refine_candidates: int = 300
     refine_iterations: int = 8
@@ -512,6 +515,7 @@ class IRLocalizer:
             tolerance_bins=s.step2_tolerance_bins,
             use_idf=s.use_idf,
             no_return_terms=s.no_return_terms,
+            idf_log=s.idf_log,
         )
         timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
         if len(poses) == 0:

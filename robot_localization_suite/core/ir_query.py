@@ -253,13 +253,15 @@ def step2_poses(
     tolerance_bins: int,
     use_idf: bool,
     no_return_terms: bool,
+    idf_log: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Section IV-B-4: every (x, y, theta) of the positions, ranked by the summed idf of their hits.
 
     The on-the-fly index links each live hit ``(beam, range bin)`` to the poses
     whose expected scan (the fan rotated to theta) holds it; a hit's weight is
     the number of indexed poses divided by the number holding it (the paper's
-    idf), or 1 without idf (plain counting).
+    idf; its logarithm, the usual idf of information retrieval, with
+    ``idf_log``), or 1 without idf (plain counting).
 
     Returns:
         poses ``(N * H, 3)`` (x, y, theta of the laser) and scores, best first.
@@ -282,6 +284,8 @@ def step2_poses(
     if use_idf:
         frequency = flat.sum(axis=0, dtype=np.float64)
         weights = flat.shape[0] / np.maximum(frequency, 1.0)
+        if idf_log:
+            weights = np.log(weights)
     else:
         weights = np.ones(flat.shape[1])
     scores = flat @ weights

@@ -61,6 +61,7 @@ PARAMS = (
     ParamSpec("step2_range_bin", _D.step2_range_bin, "step 2: range bin of a beam hit [m]", 0.001, 10.0),
     ParamSpec("step2_tolerance_bins", _D.step2_tolerance_bins, "step 2: a pose holds a hit within this many bins", 0, 1000),
     ParamSpec("use_idf", _D.use_idf, "step 2: idf weights (paper); false: plain counting"),
+    ParamSpec("idf_log", _D.idf_log, "step 2: log(N / df) instead of the paper's N / df"),
     ParamSpec("no_return_terms", _D.no_return_terms, "step 2: no-return readings are hits of their own bin"),
     ParamSpec("refine_candidates", _D.refine_candidates, "best step-2 poses aligned to the map and re-ranked; 0: paper's list", 0, 1_000_000),
     ParamSpec("refine_iterations", _D.refine_iterations, "Gauss-Newton iterations of the refinement", 0, 1000),
