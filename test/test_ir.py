@@ -18,7 +18,7 @@ import scipy.sparse as sp
 
 from robot_localization_suite.core.errors import CacheError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.ir import IRLocalizer, IRSettings, recall_at_k
+from robot_localization_suite.core.ir import IRLocalizer, IRSettings
 from robot_localization_suite.core.ir_index import (
     NO_RETURN,
     FanModel,
@@ -30,6 +30,7 @@ from robot_localization_suite.core.ir_index import (
 )
 from robot_localization_suite.core.ir_query import LiveScan, step2_poses
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
+from robot_localization_suite.core.metrics import recall_at_k
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 from robot_localization_suite.core.se2 import angle_difference, compose, relative
@@ -369,13 +370,6 @@ def test_settings_refuse_bad_values_naming_them() -> None:
         IRSettings(pattern_range_bin=0.01)
     with pytest.raises(ValueError, match="max_range"):
         FanModel(rays=360, max_range=20.0, range_resolution=0.05)  # beyond one-byte codes
-
-
-def test_recall_at_k_counts_the_first_correct_candidate() -> None:
-    truth = np.array([1.0, 2.0, 0.0])
-    candidates = np.array([[5.0, 5.0, 0.0], [1.3, 2.0, 3.0], [1.3, 2.0, 0.3]])
-    assert recall_at_k(candidates, truth, (1, 2, 3)) == {1: False, 2: False, 3: True}
-    assert recall_at_k(np.zeros((0, 3)), truth, (1,)) == {1: False}
 
 
 # -- tracking -----------------------------------------------------------------------------------

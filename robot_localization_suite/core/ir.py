@@ -122,7 +122,7 @@ from .motion import OdometryMotionModel, odometry_delta
 from .scan import Scan
 from .se2 import angle_difference, compose, relative, wrap_angle
 
-__all__ = ["IRSettings", "IRLocalizer", "recall_at_k", "IRIndex", "FanModel", "IndexSettings"]
+__all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 
 _LOG = logging.getLogger(__name__)
 
@@ -326,22 +326,6 @@ class IRSettings:
         cap = MAX_HIT_CODE * self.range_resolution
         limit = self.max_range if self.max_range > 0.0 else range_max
         return FanModel(rays=rays, max_range=float(min(limit, range_max, cap)), range_resolution=self.range_resolution)
-
-
-def recall_at_k(
-    candidates: NDArray[np.float64],
-    truth: NDArray[np.float64],
-    ks: tuple[int, ...] = (1, 5, 10, 30, 50, 100),
-    *,
-    distance: float = 0.5,
-    angle: float = math.radians(25.0),
-) -> dict[int, bool]:
-    """Whether a candidate within ``distance`` [m] and ``angle`` [rad] of ``truth`` is among the first k."""
-    candidates = np.asarray(candidates, dtype=np.float64).reshape(-1, 3)
-    ok = np.hypot(candidates[:, 0] - truth[0], candidates[:, 1] - truth[1]) <= distance
-    ok &= np.abs(angle_difference(candidates[:, 2], truth[2])) <= angle
-    first = int(np.argmax(ok)) if ok.any() else len(candidates) + 1
-    return {k: first < k for k in ks}
 
 
 def _low_variance_resample(weights: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:

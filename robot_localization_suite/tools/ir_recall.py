@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -34,26 +33,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..core import metrics
 from ..core.grid_map import GridMap, load_map_yaml
-from ..core.ir import IRLocalizer, IRSettings, recall_at_k
+from ..core.ir import IRLocalizer, IRSettings
 from ..core.scan import LaserMount, Scan
 from ..core.se2 import compose, inverse
 
 __all__ = ["KS", "evaluate", "format_table", "load_bag_scans", "main"]
 
 KS = (1, 5, 10, 30, 50, 100)
-
-
-def _interpolate_pose(stamps: NDArray[np.float64], poses: NDArray[np.float64], t: float) -> NDArray[np.float64] | None:
-    if len(stamps) == 0 or t < stamps[0] or t > stamps[-1]:
-        return None
-    i = int(np.searchsorted(stamps, t))
-    if i == 0 or stamps[i] == t:
-        return poses[i].copy()
-    a = (t - stamps[i - 1]) / (stamps[i] - stamps[i - 1])
-    p0, p1 = poses[i - 1], poses[i]
-    dtheta = math.remainder(p1[2] - p0[2], 2.0 * math.pi)
-    return np.array([p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1]), math.remainder(p0[2] + a * dtheta, 2.0 * math.pi)])
 
 
 def load_bag_scans(bag: Path) -> tuple[list[Scan], NDArray[np.float64], GridMap | None]:
@@ -73,14 +61,11 @@ def load_bag_scans(bag: Path) -> tuple[list[Scan], NDArray[np.float64], GridMap 
             truth_poses.append(pose)
         elif message.topic == "/map" and grid_map is None:
             grid_map = conversions.grid_map_from_msg(message.msg)
-    order = np.argsort(truth_stamps)
-    stamps = np.asarray(truth_stamps)[order]
-    poses = np.asarray(truth_poses).reshape(-1, 3)[order]
     truths = np.full((len(scans), 3), np.nan)
-    for i, scan in enumerate(scans):
-        pose = _interpolate_pose(stamps, poses, scan.stamp)
-        if pose is not None:
-            truths[i] = pose
+    if truth_stamps:
+        order = np.argsort(truth_stamps)
+        trajectory = metrics.Trajectory(np.asarray(truth_stamps)[order], np.asarray(truth_poses).reshape(-1, 3)[order])
+        truths = metrics.interpolate_poses(trajectory, [scan.stamp for scan in scans])
     return scans, truths, grid_map
 
 
@@ -131,7 +116,7 @@ def evaluate(
             estimate = localizer.global_fix(scans[i])
             elapsed = (time.perf_counter() - t0) * 1e3
             candidates = compose(estimate.candidates, to_base) if len(estimate.candidates) else estimate.candidates
-            hits[name].append(recall_at_k(candidates, truth, KS))
+            hits[name].append(metrics.recall_at_k(candidates, truth, KS))
             if name == "final, idf":
                 query_ms.append(elapsed)
                 step_ms.append(estimate.details.get("step1_ms", 0.0) + estimate.details.get("step2_ms", 0.0))
@@ -139,7 +124,7 @@ def evaluate(
                 # Position only (the paper's "pose (x, y)" row): the laser's position, heading ignored.
                 truth_laser = compose(truth, mount.pose)
                 as_poses = np.column_stack([xy, np.full(len(xy), truth_laser[2])]) if len(xy) else np.zeros((0, 3))
-                hits["step 1 (x, y)"].append(recall_at_k(as_poses, truth_laser, KS))
+                hits["step 1 (x, y)"].append(metrics.recall_at_k(as_poses, truth_laser, KS))
                 if "reason" in estimate.details:
                     reasons[estimate.details["reason"]] = reasons.get(estimate.details["reason"], 0) + 1
         if progress and used % 50 == 0:
