@@ -423,8 +423,12 @@ def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLo
     assert all("initialized_because" not in e.details for e in estimates[1:])
 
 
-def test_a_kidnapped_tracker_finds_itself_lost_and_reinitialises_by_itself(world: GridMap, localizer: IRLocalizer) -> None:
-    tracker = IRLocalizer(settings(seed=6, lost_update_count=2), None)
+@pytest.mark.parametrize(("global_check_updates", "expected"), [(0, {"lost"}), (2, {"lost", "better global fix"})])
+def test_a_kidnapped_tracker_reinitialises_by_itself(
+    world: GridMap, localizer: IRLocalizer, global_check_updates: int, expected: set[str]
+) -> None:
+    # 0: only the LOST rule (end-point scores collapse); 2: also the periodic global check
+    tracker = IRLocalizer(settings(seed=6, lost_update_count=2, global_check_updates=global_check_updates), None)
     tracker.grid_map, tracker.index = world, localizer.index
     tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
     before = _drive(world, [(1.0, 1.5), (8.0, 1.6)])
@@ -434,7 +438,8 @@ def test_a_kidnapped_tracker_finds_itself_lost_and_reinitialises_by_itself(world
     estimates = _run(tracker, world, np.vstack([before, after]), np.random.default_rng(8), np.zeros(3), odom_truth)
     reasons = [e.details.get("initialized_because") for e in estimates]
     assert reasons[0] == "start"
-    assert "lost" in reasons[len(before) :]
+    assert set(reasons[len(before) :]) & expected
+    assert not set(reasons[1 : len(before)]) - {None}  # no restart before the kidnapping
     final = estimates[-1]
     assert math.hypot(*(final.pose[:2] - after[-1][:2])) < 0.3
 
