@@ -74,16 +74,17 @@ Interpretation of the paper (the choices it leaves open, written down)
   ranked candidates of the initialisation with probability 1 / rank (the
   paper takes "the 100 positions found"; one particle per hypothesis lost the
   right one to motion noise on the test floor whenever it was not alone at
-  the top), copies spread over half a grid cell and half a heading step. An update happens after ``update_min_d`` metres or
-  ``update_min_a`` radians of odometry (the paper's 1 m / 20 degrees): the
-  shared odometry motion model moves the particles (the paper's velocity
-  model needs velocities the bags do not carry), the end-point model scores
-  each particle by the fraction of its hit end-points that fall on occupied
-  cells (within ``endpoint_tolerance``, 0 = the cell itself as the paper),
-  weights are that score to the power ``score_exponent`` (1 = the paper's
-  vote; 4 by default, see :class:`IRSettings`), and the particles are resampled (low-variance) at every update.
-  Between updates the particles follow odometry without noise, so every scan
-  gets an estimate.
+  the top), copies spread over half a grid cell and half a heading step. An
+  update happens after ``update_min_d`` metres or ``update_min_a`` radians of
+  odometry (the paper's 1 m / 20 degrees): the shared odometry motion model
+  moves the particles (the paper's velocity model needs velocities the bags
+  do not carry), the end-point model scores each particle by the fraction of
+  its hit end-points (at most ``max_beams``) that fall on occupied cells
+  (within ``endpoint_tolerance``; 0 = the cell itself, as the paper), weights
+  are that score to the power ``score_exponent`` (1 = the paper's vote; 4 by
+  default, see :class:`IRSettings`), and the particles are resampled
+  (low-variance) at every update. Between updates the particles follow
+  odometry without noise, so every scan gets an estimate.
 * **LOST**: when the best particle's end-point score stays below
   ``lost_score_threshold``, or below ``lost_score_ratio`` times its running
   average over the good updates, for ``lost_update_count`` updates in a row,
@@ -96,8 +97,13 @@ Interpretation of the paper (the choices it leaves open, written down)
   elsewhere, the filter restarts from the fix (``initialized_because`` =
   ``"better global fix"``).
 * **Outputs**: after an initialisation the candidates are the ranked poses
-  (best first); afterwards the particles. The pose is the weighted mean of
-  the particles near the best one.
+  (best first) and the pose is the best of them (moved by odometry until the
+  first update); afterwards the candidates are the particles and the pose is
+  the weighted mean of the best-supported cluster (0.5 m, 25 degrees).
+* **Bad input**: ``global_fix`` returns no candidates and
+  ``details["reason"]`` for a scan with no valid reading or no hit;
+  ``on_scan`` raises :class:`~.errors.ScanError` with that reason (the
+  adapter logs it, throttled, and skips the scan) and keeps its state.
 """
 
 from __future__ import annotations
