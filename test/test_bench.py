@@ -132,7 +132,8 @@ def test_localizer_that_never_publishes_gives_nulls(kidnap_bag, tmp_path):
         assert fields[key] is None
     assert fields["kidnap_recovery_s"] == [None]
     assert fields["correct"] == 0
-    assert fields["update_ms_median"] is not None  # it was asked 201 times, and timed
+    assert fields["inputs"] == 201
+    assert fields["update_ms_median"] is None  # asked 201 times, but a call that returns nothing is no update
     assert "| room_kidnap | silent | 0 | – |" in (tmp_path / "summary.md").read_text()
 
 
@@ -217,11 +218,14 @@ def test_global_fixes_leave_out_localizers_without_global_fix(kidnap_bag, tmp_pa
 
 def test_run_in_a_child_process(kidnap_bag, tmp_path):
     path, truth = kidnap_bag
+    ballast = np.ones(40_000_000)  # 320 MB resident in this process, none of it in the child's run
     summary = bench.run_benchmark([path], [echo_spec(truth, lost_for_two_seconds)], tmp_path, isolate=True,
                                   plots=False)
     fields = summary["room_kidnap"]["echo"]
     assert fields["kidnap_recovery_s"] == [pytest.approx(2.0, abs=SCAN_PERIOD)]
-    assert fields["peak_rss_mb"] > 50  # the child's own ru_maxrss: python + numpy + rclpy
+    # The child's own peak (python + numpy + rclpy), not this test process's size inherited through fork.
+    assert 50 < fields["peak_rss_mb"] < 300 < bench._own_peak_rss_mb()
+    del ballast
 
 
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):

@@ -10,7 +10,9 @@ deterministic replay (``ros/bag.py``: messages in bag order, each handled
 before the next) and the same ``ros/adapter.py`` :class:`LocalizerAdapter` the
 nodes use, so the benchmark measures the code a robot runs, without DDS.
 Every (bag, localizer) run happens in a fresh child process (``spawn``) so
-that ``peak_rss_mb`` is that run's own peak (``getrusage`` ``ru_maxrss``) and a
+that ``peak_rss_mb`` is that run's own peak (``VmHWM`` of the child; not
+``ru_maxrss``, which on Linux carries over the parent's resident size from the
+fork that precedes the exec) and a
 crash or hang in one localizer cannot take the table down; ``--in-process``
 runs them in this process instead (peak RSS is then sampled with psutil after
 each message, which misses spikes inside an update).
@@ -539,13 +541,30 @@ def _child_main(conn: Any, func: Callable[..., Any], args: tuple, kwargs: dict) 
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     try:
         result = func(*args, **kwargs)
-        # ru_maxrss is in KiB on Linux: the peak of this whole child, i.e. of this one run.
-        result.peak_rss_mb = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+        result.peak_rss_mb = _own_peak_rss_mb()
         conn.send(("ok", result))
     except BaseException as exc:  # noqa: BLE001 - everything goes back to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=6)}"))
     finally:
         conn.close()
+
+
+def _own_peak_rss_mb() -> float:
+    """Peak resident memory [MB] of this process image.
+
+    ``VmHWM`` of ``/proc/self/status`` belongs to the address space made by ``exec``, so a
+    spawned child reports its own peak; ``ru_maxrss`` would keep the parent's size from the
+    ``fork`` before the ``exec`` (Linux keeps it across exec). Elsewhere ``ru_maxrss`` it is.
+    """
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        pass
+    scale = 1024.0 if sys.platform != "darwin" else 1024.0**2
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale, 1)
 
 
 def _run_isolated(func: Callable[..., Any], args: tuple, kwargs: dict, timeout: float) -> tuple[str, Any]:
