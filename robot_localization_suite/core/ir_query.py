@@ -237,6 +237,10 @@ def step1_positions(
     return candidates[order], position_scores[candidates[order]]
 
 
+# Positions compared at once in step 2 (300 positions x 72 headings x 360 beams is 7.8 M comparisons).
+_STEP2_BLOCK = 400
+
+
 def _bin_table(divisor: int) -> NDArray[np.int16]:
     table = (np.arange(256) // divisor).astype(np.int16)
     table[NO_RETURN] = 10_000  # never within a tolerance of a hit's bin
@@ -275,20 +279,38 @@ def step2_poses(
     rays = np.rint(headings[:, None] / fan.ray_step + offsets[None, :]).astype(np.int64) % fan.rays
     divisor = max(1, int(round(range_bin / fan.range_resolution)))
     table = _bin_table(divisor)
-    expected = table[index.fans[position_ids][:, rays]]  # (N, H, J)
     observed = table[live.codes[usable]]
-    match = np.abs(expected - observed) <= tolerance_bins
-    if no_return_terms:
-        match |= (expected == table[NO_RETURN]) & (observed == table[NO_RETURN])
-    flat = match.reshape(-1, match.shape[-1])
+    no_return = table[NO_RETURN]
+
+    def holds(block: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """``(n * H, J)``: whether each pose of these positions holds each live hit."""
+        expected = table[index.fans[block][:, rays]]  # (n, H, J)
+        match = np.abs(expected - observed) <= tolerance_bins
+        if no_return_terms:
+            match |= (expected == no_return) & (observed == no_return)
+        return match.reshape(-1, match.shape[-1])
+
+    # Blocks of positions bound the memory of the (positions x headings x beams) comparison.
+    blocks = [position_ids[i : i + _STEP2_BLOCK] for i in range(0, len(position_ids), _STEP2_BLOCK)]
+    matches = [holds(blocks[0])] if len(blocks) == 1 else None
     if use_idf:
-        frequency = flat.sum(axis=0, dtype=np.float64)
-        weights = flat.shape[0] / np.maximum(frequency, 1.0)
+        frequency = np.zeros(len(observed))
+        pose_count = 0
+        for block in blocks if matches is None else []:
+            held = holds(block)
+            frequency += held.sum(axis=0)
+            pose_count += held.shape[0]
+        if matches is not None:
+            frequency, pose_count = matches[0].sum(axis=0, dtype=np.float64), matches[0].shape[0]
+        weights = pose_count / np.maximum(frequency, 1.0)
         if idf_log:
             weights = np.log(weights)
     else:
-        weights = np.ones(flat.shape[1])
-    scores = flat @ weights
+        weights = np.ones(len(observed))
+    if matches is not None:
+        scores = matches[0] @ weights
+    else:
+        scores = np.concatenate([holds(block) @ weights for block in blocks])
     poses = np.empty((len(position_ids), heading_count, 3))
     poses[..., :2] = index.positions[position_ids][:, None, :]
     poses[..., 2] = wrap_angle(headings)[None, :]
