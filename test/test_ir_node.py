@@ -116,3 +116,42 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def test_tracking_converges_on_the_simulated_office_bag(repo_root: Path, tmp_path: Path) -> None:
+    """The office bag of scan_sim through the adapter, as rls_bench replays it, up to the first kidnapping."""
+    from robot_localization_suite.core import metrics
+    from robot_localization_suite.ros.adapter import LocalizerAdapter
+    from robot_localization_suite.ros.bag import read_bag
+
+    bag = repo_root / "bags" / "office_kidnap"
+    if not (bag / "metadata.yaml").is_file():
+        pytest.skip("bags/office_kidnap has not been recorded")
+    params = registry.localizer_params(
+        "ir_initializer",
+        {"grid_resolution": 0.1, "angular_resolution": math.radians(2.0), "progress": False, "cache_dir": str(tmp_path)},
+    )
+    adapter = LocalizerAdapter(ir_initializer.make_localizer(params), node_name="ir_initializer", log=lambda *_: None)
+    truth_stamps, truth_poses, outputs = [], [], []
+    for item in read_bag(bag, ["/map", "/odom", "/scan", "/ground_truth"]):
+        if item.topic == "/map":
+            adapter.on_map_msg(item.msg)
+        elif item.topic == "/odom":
+            adapter.on_odom_msg(item.msg)
+        elif item.topic == "/ground_truth":
+            stamp, pose = conversions.odometry_from_msg(item.msg)
+            truth_stamps.append(stamp)
+            truth_poses.append(pose)
+        elif item.topic == "/scan":
+            output = adapter.on_scan_msg(item.msg)
+            if output is not None:
+                outputs.append(output.estimate)
+            if len(outputs) >= 240:  # the first kidnapping comes after 250 scans
+                break
+    truth = metrics.interpolate_poses(metrics.Trajectory(np.array(truth_stamps), np.array(truth_poses)),
+                                      [e.stamp for e in outputs])
+    dxy, dtheta = metrics.pose_errors(np.array([e.pose for e in outputs]), truth)
+    correct = metrics.correct_mask(dxy, dtheta)
+    assert outputs[0].details["phase"] == "initialization"
+    assert correct[len(correct) // 4 :].mean() >= 0.95
+    assert outputs[-1].status is LocalizerStatus.LOCALIZED
