@@ -15,6 +15,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from .gauss_newton import solve_symmetric_3x3
 from .grid_map import GridMap
 from .ir_index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
 from .scan import Scan
@@ -421,19 +422,9 @@ def _refine(d, gx, gy, ox, oy, res, outside, poses, bx, by, iterations, inv_two_
             h00 += damping
             h11 += damping
             h22 += damping
-            # 3x3 symmetric solve (Cramer's rule): H step = -g
-            c00 = h11 * h22 - h12 * h12
-            c01 = h02 * h12 - h01 * h22
-            c02 = h01 * h12 - h02 * h11
-            det = h00 * c00 + h01 * c01 + h02 * c02
-            if abs(det) < 1e-18:
+            solved, sx, sy, st = solve_symmetric_3x3(h00, h01, h02, h11, h12, h22, g0, g1, g2)
+            if not solved:
                 break
-            c11 = h00 * h22 - h02 * h02
-            c12 = h01 * h02 - h00 * h12
-            c22 = h00 * h11 - h01 * h01
-            sx = -(c00 * g0 + c01 * g1 + c02 * g2) / det
-            sy = -(c01 * g0 + c11 * g1 + c12 * g2) / det
-            st = -(c02 * g0 + c12 * g1 + c22 * g2) / det
             x += sx
             y += sy
             t += st

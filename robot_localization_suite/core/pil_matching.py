@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ScanError
+from .gauss_newton import solve_symmetric_3x3
 from .pil_levels import LevelFunction
 from .scan import Scan
 from .se2 import wrap_angle
@@ -468,22 +469,13 @@ def _refine_kernel(
                 used += 1
             if used < 3:
                 break
-            # Levenberg-style damping of the diagonal, then Cramer's rule.
+            # Levenberg-style damping of the diagonal before the solve.
             h00 = h00 * 1.001 + 1e-9
             h11 = h11 * 1.001 + 1e-9
             h22 = h22 * 1.001 + 1e-9
-            c00 = h11 * h22 - h12 * h12
-            c01 = h02 * h12 - h01 * h22
-            c02 = h01 * h12 - h02 * h11
-            det = h00 * c00 + h01 * c01 + h02 * c02
-            if abs(det) < 1e-18:
+            solved, s0, s1, s2 = solve_symmetric_3x3(h00, h01, h02, h11, h12, h22, g0, g1, g2)
+            if not solved:
                 break
-            c11 = h00 * h22 - h02 * h02
-            c12 = h01 * h02 - h00 * h12
-            c22 = h00 * h11 - h01 * h01
-            s0 = -(c00 * g0 + c01 * g1 + c02 * g2) / det
-            s1 = -(c01 * g0 + c11 * g1 + c12 * g2) / det
-            s2 = -(c02 * g0 + c12 * g1 + c22 * g2) / det
             # Bounded steps keep Gauss-Newton inside the basin of the candidate.
             step_xy = math.hypot(s0, s1)
             if step_xy > 0.1:
