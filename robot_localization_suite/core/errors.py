@@ -9,6 +9,7 @@ __all__ = [
     "BagError",
     "ScanError",
     "CacheError",
+    "ImageError",
 ]
 
 
@@ -34,3 +35,7 @@ class ScanError(LocalizationSuiteError):
 
 class CacheError(LocalizationSuiteError):
     """An on-disk precomputation cache is missing, stale or corrupt."""
+
+
+class ImageError(LocalizationSuiteError):
+    """A camera image cannot be used (wrong shape, non-finite values)."""

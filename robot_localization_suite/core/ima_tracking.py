@@ -64,16 +64,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import LocalizationSuiteError
+from .errors import ImageError
 from .ima import ImaSettings, PanoramaBank, PlaceMatch, TopologicalMap, to_grey
 from .localizer import Estimate, LocalizerStatus
 from .se2 import angle_difference, compose, relative, wrap_angle
 
 __all__ = ["ImaTrackerSettings", "Hypotheses", "ImaTopoLocalizer", "ImageError", "activity_update"]
-
-
-class ImageError(LocalizationSuiteError):
-    """A camera image cannot be used (wrong shape, non-finite values)."""
 
 
 @dataclass(frozen=True)
