@@ -167,3 +167,19 @@ def test_recall_at_k_finds_the_rank_of_the_first_correct_candidate():
 def test_trajectory_rejects_mismatched_lengths():
     with pytest.raises(ValueError, match="3 stamps but 2 poses"):
         metrics.Trajectory([0.0, 1.0, 2.0], np.zeros((2, 3)))
+
+
+def test_containment_after_restart_leaves_out_kidnap_to_restart_only():
+    from robot_localization_suite.core.metrics import outside_kidnap_until_restart
+
+    stamps = np.arange(10.0)
+    lost = np.zeros(10, dtype=bool)
+    lost[6] = True  # the box list emptied at t = 6 s: the method restarts there
+    keep = outside_kidnap_until_restart(stamps, lost, np.array([3.0]))
+    # Outputs from the kidnapping (3 s) through the restart (6 s) are not judged; the rest are.
+    assert keep.tolist() == [True, True, True, False, False, False, False, True, True, True]
+    # A kidnapping never followed by a restart leaves everything after it unjudged.
+    keep = outside_kidnap_until_restart(stamps, np.zeros(10, dtype=bool), np.array([8.0]))
+    assert keep.tolist() == [True] * 8 + [False, False]
+    # No kidnapping: every output counts.
+    assert outside_kidnap_until_restart(stamps, lost, np.zeros(0)).all()

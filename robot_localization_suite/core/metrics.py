@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from .se2 import angle_difference, relative, wrap_angle
 
 __all__ = [
+    "outside_kidnap_until_restart",
     "CORRECT_XY_M",
     "CORRECT_THETA_RAD",
     "FINE_XY_M",
@@ -352,3 +353,21 @@ def evaluate_global_fixes(
     else:
         fields["fix_ms_median"] = fields["fix_ms_p95"] = None
     return fields
+
+
+def outside_kidnap_until_restart(
+    stamps: NDArray[np.float64], lost: NDArray[np.bool_], kidnap_stamps: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """Mask of outputs outside ``[kidnapping, first LOST output after it]`` (both ends excluded from the rate).
+
+    A kidnapping no sensor can notice breaks the bounds a guaranteed method rests on;
+    its promise holds again from the restart that an empty set (status LOST) triggers.
+    A kidnapping never followed by a LOST output masks everything after it.
+    """
+    keep = np.ones(stamps.shape, dtype=bool)
+    for kidnap in np.asarray(kidnap_stamps, dtype=np.float64):
+        after = stamps >= kidnap
+        restarts = np.flatnonzero(after & lost)
+        end = stamps[restarts[0]] if restarts.size else np.inf
+        keep &= ~(after & (stamps <= end))
+    return keep
