@@ -447,13 +447,7 @@ class MonteCarloLocalizer:
         self._odom_stamps: list[float] = []
         self._odom_poses: list[NDArray[np.float64]] = []
         self._update_odom: NDArray[np.float64] | None = None
-        self._force_update = True
-        self._updates_since_resample = 0
-        self.w_slow = 0.0
-        self.w_fast = 0.0
-        self._fit_slow = _RunningAverage(self.settings.recovery_alpha_slow)
-        self._fit_fast = _RunningAverage(self.settings.recovery_alpha_fast)
-        self._ever_localized = False
+        self._reset_filter_state()
         self.last_estimate: Estimate | None = None
         if self.settings.set_initial_pose:
             s = self.settings
@@ -590,6 +584,10 @@ class MonteCarloLocalizer:
             particles[:, 2] = wrap_angle(particles[:, 2])
             self.particles = particles
         self.log_weights = np.zeros(count)
+        self._reset_filter_state()
+
+    def _reset_filter_state(self) -> None:
+        """What a fresh cloud starts with: no odometry reference, recovery averages cleared."""
         self._update_odom = None
         self._force_update = True
         self._updates_since_resample = 0
