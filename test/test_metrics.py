@@ -85,8 +85,24 @@ def test_kidnapping_never_recovered_gives_null():
     outputs = odometry.poses  # never notices
     fields = metrics.evaluate_outputs(truth.stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
     assert fields["kidnap_recovery_s"] == [None]
-    # The 5 s right after the jump are left out of the RMSE, the 5 s after that are 3 m off.
-    assert fields["rmse_xy_m"] == pytest.approx(3.0 * np.sqrt(51 / 151), abs=1e-3)
+    # Everything after an unrecovered jump is left out of the tracking RMSE (the failure is
+    # the null above and the correct rate), so the RMSE sees only the perfect first 10 s.
+    assert fields["correct_rate"] == pytest.approx(100 / 201, abs=1e-4)
+    assert fields["rmse_xy_m"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_rmse_leaves_out_a_long_recovery_but_not_the_tracking_after_it():
+    truth, odometry = kidnapped_line(jump_at=5.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    outputs = truth.poses.copy()
+    lost = (stamps >= 5.0 - 1e-9) & (stamps < 13.0 - 1e-9)
+    outputs[lost] = odometry.poses[lost]  # 8 s on the old place, longer than the 5 s minimum
+    outputs[stamps >= 13.0 - 1e-9, 0] += 0.1  # then tracking 0.1 m off
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert fields["kidnap_recovery_s"] == [pytest.approx(8.0, abs=SCAN_PERIOD)]
+    # 50 outputs at 0 m before the jump, 71 at 0.1 m from 13 s to 20 s; the 8 s between are out.
+    assert fields["rmse_xy_m"] == pytest.approx(0.1 * np.sqrt(71 / 121), abs=1e-3)
 
 
 def test_no_output_gives_nulls_not_a_crash():

@@ -883,8 +883,9 @@ def write_summary(out_dir: Path, summary: Mapping[str, Any], *, title: str) -> N
                        "recall@k: a correct candidate among the first k.")
     else:
         explanation = (f"A fix is a correct output followed by {metrics.FIX_FOLLOWERS} more. Rates and RMSE count "
-                       f"outputs from the first fix on; RMSE leaves out {metrics.KIDNAP_EXCLUSION_S:.0f} s after "
-                       "each kidnapping.")
+                       f"outputs from the first fix on; RMSE (the tracking error) leaves out each kidnapping's "
+                       f"recovery, from the jump to its recovery fix (at least {metrics.KIDNAP_EXCLUSION_S:.0f} s; "
+                       "to the next kidnapping if never recovered).")
     text = [f"# {title}", "", summary_table(summary), "",
             f"{criteria} {explanation} Definitions: README, section Benchmark.", ""]
     (out_dir / "summary.md").write_text("\n".join(text))
