@@ -27,11 +27,13 @@ class EchoLocalizer:
         *,
         details: Callable[[float, np.ndarray], dict[str, Any]] | None = None,
         decoys: int = 0,
+        truth_as_candidate: bool = False,
     ) -> None:
         self.truth = truth
         self.error = error
         self.details = details
         self.decoys = decoys
+        self.truth_as_candidate = truth_as_candidate
         self.grid_map = None
         self.initial_pose = None
         self.odometry_count = 0
@@ -52,7 +54,10 @@ class EchoLocalizer:
         true_pose = self._true_pose(scan.stamp)
         pose = true_pose + np.asarray(offset, dtype=np.float64)
         details = self.details(scan.stamp, true_pose) if self.details else {}
-        return Estimate(scan.stamp, pose, np.eye(3) * 0.01, LocalizerStatus.LOCALIZED, details=details)
+        # truth_as_candidate: the truth is always the runner-up candidate (an ambiguous place).
+        candidates = np.vstack([pose, true_pose]) if self.truth_as_candidate else np.zeros((0, 3))
+        return Estimate(scan.stamp, pose, np.eye(3) * 0.01, LocalizerStatus.LOCALIZED, candidates=candidates,
+                        details=details)
 
     def global_fix(self, scan: Any) -> Estimate:
         """Ranked candidates: ``decoys`` wrong poses 5 m away first, then the error-shifted truth."""

@@ -199,3 +199,27 @@ def test_containment_after_restart_leaves_out_kidnap_to_restart_only():
     assert keep.tolist() == [True] * 8 + [False, False]
     # No kidnapping: every output counts.
     assert outside_kidnap_until_restart(stamps, lost, np.zeros(0)).all()
+
+
+def test_recovery_counted_in_updates_and_among_candidates():
+    truth, odometry = kidnapped_line(jump_at=10.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    outputs = truth.poses.copy()
+    lost = (stamps >= 10.0 - 1e-9) & (stamps < 12.0 - 1e-9)
+    outputs[lost] = odometry.poses[lost]  # the pose names the old place for 20 updates
+    # ...but from the jump on the truth is the second of the candidates (an ambiguous place).
+    candidates = np.full((stamps.size, metrics.CANDIDATE_K, 3), np.nan)
+    candidates[:, 0] = outputs
+    candidates[lost, 1] = truth.poses[lost]
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps,
+                                      candidates=candidates)
+    assert fields["kidnap_recovery_updates"] == [21]
+    assert fields["kidnap_candidate_recovery_updates"] == [1]
+    # Candidates that never hold the truth do not count; without candidates there is no such field.
+    candidates[lost, 1] = odometry.poses[lost] + [0.0, 1.0, 0.0]
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps,
+                                      candidates=candidates)
+    assert fields["kidnap_candidate_recovery_updates"] == [21]
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert fields["kidnap_candidate_recovery_updates"] is None

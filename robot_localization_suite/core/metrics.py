@@ -19,6 +19,15 @@ The definitions (also in README ``## Benchmark``):
 * ``kidnap_recovery_s``: per kidnapping, from the jump (the stamp of the first
   ground truth after it) to the first fix starting after it and before the
   next kidnapping; null if none.
+* ``kidnap_recovery_updates``: the same recovery counted in outputs: the
+  outputs from the jump up to and including the first of the recovery fix
+  (1: the first update after the jump is already the fix).
+* ``kidnap_candidate_recovery_updates``: the same count where an output
+  counts as correct when its pose or one of its first ``CANDIDATE_K`` (10)
+  candidates is correct; for localizers that publish ranked candidates (PIL,
+  IR): how soon the truth is among what the method proposes, which for a
+  kidnapping into an ambiguous place (a twin room, a stretch of corridor) is
+  all any single scan can say (PIL paper, section 3.2).
 * ``correct_rate`` / ``fine_rate``: over outputs from the first fix on.
 * ``rmse_xy_m`` / ``rmse_theta_rad``: the tracking error, over the same
   outputs, leaving out each kidnapping's recovery: from the jump to its
@@ -52,6 +61,8 @@ __all__ = [
     "KIDNAP_JUMP_M",
     "KIDNAP_EXCLUSION_S",
     "RECALL_KS",
+    "CANDIDATE_K",
+    "candidates_correct",
     "Trajectory",
     "interpolate_poses",
     "detect_kidnappings",
@@ -75,6 +86,7 @@ FIX_FOLLOWERS = 3
 KIDNAP_JUMP_M = 1.0
 KIDNAP_EXCLUSION_S = 5.0
 RECALL_KS = (1, 5, 10, 30, 50, 100)
+CANDIDATE_K = 10
 
 
 @dataclass(frozen=True)
@@ -185,6 +197,17 @@ def fine_mask(dxy: NDArray[np.float64], dtheta: NDArray[np.float64]) -> NDArray[
         return (dxy <= FINE_XY_M) & (dtheta <= FINE_THETA_RAD)
 
 
+def candidates_correct(candidates: ArrayLike, truth: ArrayLike) -> NDArray[np.bool_]:
+    """Per output: is one of its candidates correct? ``candidates`` ``(N, K, 3)`` (NaN rows: none), ``truth`` ``(N, 3)``."""
+    candidates = np.asarray(candidates, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    if candidates.size == 0:
+        return np.zeros(truth.shape[0], dtype=bool)
+    count, k = candidates.shape[:2]
+    dxy, dtheta = pose_errors(candidates.reshape(-1, 3), np.repeat(truth, k, axis=0))
+    return correct_mask(dxy, dtheta).reshape(count, k).any(axis=1)
+
+
 def first_fix_index(
     stamps: NDArray[np.float64],
     correct: NDArray[np.bool_],
@@ -229,13 +252,16 @@ def evaluate_outputs(
     *,
     first_input_stamp: float | None,
     kidnap_indices: ArrayLike = (),
+    candidates: ArrayLike | None = None,
 ) -> dict[str, Any]:
     """The accuracy fields of ``summary.json`` for one run (see the module docstring).
 
     Returns ``correct``, ``fine`` (per-output booleans, for plots), ``position_error_m``,
     ``heading_error_rad`` (NaN without truth), and the scalar fields
     ``time_to_first_fix_s``, ``kidnap_recovery_s``, ``correct_rate``, ``fine_rate``,
-    ``rmse_xy_m``, ``rmse_theta_rad``; nulls where a value does not exist.
+    ``rmse_xy_m``, ``rmse_theta_rad``, ``kidnap_recovery_updates`` and, given
+    ``candidates`` ``(N, K, 3)`` (each output's first K candidates, NaN-padded),
+    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist.
     """
     stamps = np.asarray(output_stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(output_poses, dtype=np.float64).reshape(-1, 3)
@@ -252,18 +278,30 @@ def evaluate_outputs(
     if fix is not None and first_input_stamp is not None:
         time_to_first_fix = _rounded(stamps[fix] - first_input_stamp)
 
+    proposed = None
+    if candidates is not None:
+        proposed = correct | (candidates_correct(candidates, truth) & has_truth)
     recoveries: list[float | None] = []
+    recovery_updates: list[int | None] = []
+    candidate_updates: list[int | None] = []
     recovering = np.zeros(stamps.size, dtype=bool)  # from each jump to its recovery fix (>= 5 s)
     for k, jump_stamp in enumerate(kidnap_stamps):
         next_jump = kidnap_stamps[k + 1] if k + 1 < kidnap_stamps.size else np.inf
+        first_after = int(np.searchsorted(stamps, jump_stamp, side="left"))
         index = first_fix_index(stamps, correct, start=jump_stamp, stop=next_jump)
         recoveries.append(None if index is None else _rounded(stamps[index] - jump_stamp))
+        recovery_updates.append(None if index is None else index - first_after + 1)
+        if proposed is not None:
+            found = first_fix_index(stamps, proposed, start=jump_stamp, stop=next_jump)
+            candidate_updates.append(None if found is None else found - first_after + 1)
         recovered_at = next_jump if index is None else max(stamps[index], jump_stamp + KIDNAP_EXCLUSION_S)
         recovering |= (stamps >= jump_stamp) & (stamps < recovered_at)
 
     fields: dict[str, Any] = {
         "time_to_first_fix_s": time_to_first_fix,
         "kidnap_recovery_s": recoveries,
+        "kidnap_recovery_updates": recovery_updates,
+        "kidnap_candidate_recovery_updates": candidate_updates if proposed is not None else None,
         "correct_rate": None,
         "fine_rate": None,
         "rmse_xy_m": None,

@@ -295,6 +295,7 @@ class RunRecord:
     stamps: NDArray[np.float64]
     poses: NDArray[np.float64]
     statuses: list[str]
+    candidates: NDArray[np.float64] | None  # (outputs, CANDIDATE_K, 3) NaN-padded; None: no candidates ever
     update_ms: NDArray[np.float64]
     inputs: int
     first_input_stamp: float | None
@@ -366,7 +367,7 @@ def replay_localizer(
         raise ValueError(f"mode must be 'global' or 'tracking', got {mode!r}")
     record = RunRecord(
         bag=reference.name, localizer=spec.name, mode=mode, stamps=np.zeros(0), poses=np.zeros((0, 3)),
-        statuses=[], update_ms=np.zeros(0), inputs=0, first_input_stamp=None, map_setup_s=None,
+        statuses=[], candidates=None, update_ms=np.zeros(0), inputs=0, first_input_stamp=None, map_setup_s=None,
         peak_rss_mb=_rss_mb() if sample_rss else None,
     )
     prefix = f"[{reference.name}/{spec.name}]"
@@ -380,6 +381,7 @@ def replay_localizer(
     truth = reference.ground_truth
     stamps: list[float] = []
     poses: list[NDArray[np.float64]] = []
+    candidates: list[NDArray[np.float64]] = []
     sensor_topic = IMAGE_TOPIC if spec.uses_camera else SCAN_TOPIC
     sensor_handler = adapter.on_image_msg if spec.uses_camera else adapter.on_scan_msg
     errors_seen: dict[str, int] = {}
@@ -407,6 +409,10 @@ def replay_localizer(
         pose = np.asarray(estimate.pose, dtype=np.float64).reshape(3)
         stamps.append(float(estimate.stamp))
         poses.append(pose)
+        first = np.full((metrics.CANDIDATE_K, 3), np.nan)
+        ranked = np.asarray(estimate.candidates, dtype=np.float64).reshape(-1, 3)[: metrics.CANDIDATE_K]
+        first[: len(ranked)] = ranked
+        candidates.append(first)
         record.statuses.append(estimate.status.value)
         if estimate.details and truth is not None:
             base_truth = metrics.interpolate_poses(truth, [estimate.stamp], breaks=reference.kidnap_indices)[0]
@@ -451,6 +457,8 @@ def replay_localizer(
         record.peak_rss_mb = round(max(record.peak_rss_mb or 0.0, _rss_mb()), 1)
     record.stamps = np.array(stamps, dtype=np.float64)
     record.poses = np.array(poses, dtype=np.float64).reshape(-1, 3)
+    if candidates and not np.isnan(np.array(candidates)).all():
+        record.candidates = np.array(candidates)
     record.update_ms = np.array(timed.update_ms, dtype=np.float64)
     return record
 
@@ -616,15 +624,17 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
         evaluation = metrics.evaluate_outputs(
             record.stamps, record.poses, truth,
             first_input_stamp=record.first_input_stamp, kidnap_indices=reference.kidnap_indices,
+            candidates=record.candidates,
         )
         fields["correct"] = int(np.count_nonzero(evaluation["correct"]))
         fields["fine"] = int(np.count_nonzero(evaluation["fine"]))
-        for key in ("time_to_first_fix_s", "kidnap_recovery_s", "correct_rate", "fine_rate", "rmse_xy_m",
-                    "rmse_theta_rad"):
+        for key in ("time_to_first_fix_s", "kidnap_recovery_s", "kidnap_recovery_updates",
+                    "kidnap_candidate_recovery_updates", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
             fields[key] = evaluation[key]
         series = {key: evaluation[key] for key in ("correct", "fine", "position_error_m", "heading_error_rad")}
     else:
-        fields.update(correct=None, fine=None, time_to_first_fix_s=None, kidnap_recovery_s=[], correct_rate=None,
+        fields.update(correct=None, fine=None, time_to_first_fix_s=None, kidnap_recovery_s=[],
+                      kidnap_recovery_updates=[], kidnap_candidate_recovery_updates=None, correct_rate=None,
                       fine_rate=None, rmse_xy_m=None, rmse_theta_rad=None)
     fields.update(metrics.timing_fields(record.update_ms))
     fields["peak_rss_mb"] = record.peak_rss_mb
@@ -818,6 +828,8 @@ _REPLAY_COLUMNS = (
     ("fine_rate", "fine rate"),
     ("time_to_first_fix_s", "first fix [s]"),
     ("kidnap_recovery_s", "kidnap recovery [s]"),
+    ("kidnap_recovery_updates", "kidnap recovery [updates]"),
+    ("kidnap_candidate_recovery_updates", f"truth in top {metrics.CANDIDATE_K} [updates]"),
     ("rmse_xy_m", "RMSE xy [m]"),
     ("rmse_theta_rad", "RMSE θ [rad]"),
     ("update_ms_median", "update median [ms]"),
