@@ -22,7 +22,7 @@ from std_msgs.msg import String
 
 from ..core.errors import MapError
 from ..core.ima import ImaSettings, load_topomap
-from ..core.ima_tracking import ImaTopoLocalizer, ImaTrackerSettings
+from ..core.ima_tracking import ODOMETRY_RESETS, ImaTopoLocalizer, ImaTrackerSettings
 from ..core.localizer import Estimate
 from .common import ParamSpec
 from .localizer_node import localizer_node_main
@@ -56,6 +56,7 @@ PARAMS = (
     ParamSpec("heading_threshold", _TRACK.heading_threshold, "eps_phi: least match to correct the heading (thesis 5.2: 0.6)", 0.0, 1.0),
     ParamSpec("update_min_d", _TRACK.min_translation, "translation that triggers an update [m] (thesis 5.2: 0.3)", 0.0, 100.0),
     ParamSpec("update_min_a", _TRACK.min_rotation, "rotation that triggers an update [rad] (thesis 5.2: 10 deg)", 0.0, math.pi),
+    ParamSpec("odometry_reset", _TRACK.odometry_reset, "where the odometry guess d0 is measured from: " + ", ".join(ODOMETRY_RESETS)),
 )
 
 
@@ -95,6 +96,7 @@ def make_localizer(params: dict[str, Any]) -> ImaTopoLocalizer:
         heading_threshold=float(params["heading_threshold"]),
         min_translation=float(params["update_min_d"]),
         min_rotation=float(params["update_min_a"]),
+        odometry_reset=str(params["odometry_reset"]),
     )
     return ImaTopoLocalizer(load_topomap(resolve_topomap(str(params["topomap"]))), settings)
 
