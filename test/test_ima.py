@@ -16,6 +16,7 @@ from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ima import (
     ImaSettings,
     PanoramaBank,
+    PlaceMatch,
     TopologicalMap,
     TopoNode,
     best_matching,
@@ -368,6 +369,82 @@ def test_images_of_any_size_or_colour_are_used_and_bad_ones_refused(tracker: Ima
         tracker.on_image(1.0, np.full((20, 20), np.nan))
 
 
+# -- the odometry reset (Code 3.1 vs thesis 5.2.3 / 6.1) -------------------------------------
+_WEST, _MIDDLE, _EAST = range(3)
+_BLANK = np.zeros((120, 160), dtype=np.uint8)  # the scripted IMA below ignores the image
+
+
+def _seen(matches: dict[int, tuple[float, int]]) -> PlaceMatch:
+    """An IMA result: ``{node: (MATCH, comparison)}``, every other node 0.45 (no destination), heading 0."""
+    match = np.full(len(PLACES), 0.45)
+    comparison = np.zeros(len(PLACES), dtype=np.int64)
+    for node, (value, which) in matches.items():
+        match[node], comparison[node] = value, which
+    return PlaceMatch(match, np.zeros(len(PLACES), dtype=np.int64), np.zeros(len(PLACES)), comparison)
+
+
+def _drive_east(tracker: ImaTopoLocalizer, steps: list[tuple[float, PlaceMatch]]) -> list:
+    """Feed odometry x [m] (heading 0, the map's +x) and a scripted IMA result per update."""
+    script = iter(place for _, place in steps)
+    tracker.bank.match = lambda image: next(script)  # type: ignore[method-assign]
+    estimates = []
+    for stamp, (odom_x, _) in enumerate(steps):
+        tracker.on_odometry(float(stamp), np.array([odom_x, 0.0, 0.0]))
+        estimates.append(tracker.on_image(float(stamp), _BLANK))
+    return estimates
+
+
+@pytest.mark.parametrize(("reset", "expected"), [("winner", "WEST"), ("place", "MIDDLE"), ("zoom", "MIDDLE")])
+def test_recognising_the_last_place_half_way_resets_the_odometry_only_in_code_3_1(
+    true_panoramas: list[np.ndarray], reset: str, expected: str
+) -> None:
+    # Thesis 5.2.3's error case: at WEST (x 1.5), 0.6 m on towards MIDDLE (x 3.5) the camera still
+    # recognises WEST (through the zoomed panorama: the robot is beyond the node), then 0.6 m more
+    # nothing is recognised. The robot is at x 2.7, nearest MIDDLE. Code 3.1 reset the odometry to
+    # WEST's coordinates half way, so its odometry guess is x 2.1 -> WEST; without that reset it is 2.7.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(odometry_reset=reset))
+    first, half_way, blind = _drive_east(
+        tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.6, _seen({_WEST: (0.8, 2)})), (1.2, _seen({}))]
+    )
+    assert first.details["place"] == half_way.details["place"] == "WEST"
+    assert half_way.details["odometry_reset"] == (reset == "winner")
+    assert blind.details["kind"] == "supposed" and blind.details["place"] == expected
+
+
+@pytest.mark.parametrize(
+    ("reset", "zoom", "expected"), [("zoom", 1.1, "WEST"), ("place", 1.1, "MIDDLE"), ("zoom", 1.0, "MIDDLE")]
+)
+def test_a_match_without_zoom_re_anchors_the_odometry_at_the_node(
+    true_panoramas: list[np.ndarray], reset: str, zoom: float, expected: str
+) -> None:
+    # The wheels slip: odometry says 0.6 m but the image matches WEST's panorama without zoom, so
+    # the robot is at WEST. "zoom" re-anchors there (0.6 m more: x 2.1, WEST); "place" does not
+    # (2.7, MIDDLE); with the zoom off no comparison tells "at the node" and "zoom" acts as "place".
+    settings = ImaTrackerSettings(ima=ImaSettings(zoom=zoom), odometry_reset=reset)
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), settings)
+    _, again, blind = _drive_east(
+        tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.6, _seen({_WEST: (0.9, 0)})), (1.2, _seen({}))]
+    )
+    assert again.details["place"] == "WEST" and again.details["odometry_reset"] == (expected == "WEST")
+    assert blind.details["place"] == expected
+
+
+@pytest.mark.parametrize(("reset", "expected"), [("winner", "WEST"), ("zoom", "MIDDLE")])
+def test_a_winning_virtual_destination_resets_the_odometry_only_in_code_3_1(
+    true_panoramas: list[np.ndarray], reset: str, expected: str
+) -> None:
+    # 0.8 m east of WEST only far-away EAST is (weakly) seen: the virtual destination, the node
+    # nearest the odometry (x 2.3 -> WEST), wins. Code 3.1 then resets the odometry to WEST's
+    # coordinates (x 1.5), rounding 0.8 m away; 0.6 m later, blind, the robot is at x 2.9 (MIDDLE).
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(odometry_reset=reset))
+    _, virtual, blind = _drive_east(
+        tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.8, _seen({_EAST: (0.55, 0)})), (1.4, _seen({}))]
+    )
+    assert virtual.details["kind"] == "virtual" and virtual.details["place"] == "WEST"
+    assert virtual.details["odometry_reset"] == (reset == "winner")
+    assert blind.details["place"] == expected
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -387,3 +464,5 @@ def test_bad_tracker_settings_are_refused() -> None:
         ImaTrackerSettings(match_threshold=0.7, heading_threshold=0.6)
     with pytest.raises(ValueError, match="min_translation"):
         ImaTrackerSettings(min_translation=-1.0)
+    with pytest.raises(ValueError, match="odometry_reset"):
+        ImaTrackerSettings(odometry_reset="always")
