@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -227,12 +227,12 @@ def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: G
 def _hand_index(fans: np.ndarray) -> IRIndex:
     """An index over hand-made fans (no map): step 2 reads only positions and fans."""
     count = len(fans)
-    terms = 2 * IndexSettings().pattern_terms_per_end * (254 // 2 + 1)  # 10 cm bins of 5 cm codes
+    terms = 2 * IRSettings().pattern_terms_per_end * (254 // 2 + 1)  # 10 cm bins of 5 cm codes
     return IRIndex(
         positions=np.column_stack([np.arange(count, dtype=float), np.zeros(count)]),
         fans=fans.astype(np.uint8),
         fan=FanModel(rays=fans.shape[1], max_range=10.0, range_resolution=0.05),
-        settings=IndexSettings(),
+        settings=IRSettings().index_settings(),
         hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.int32), 0),
         pattern_positions=sp.csr_matrix((0, count), dtype=np.float32),
         pattern_frequency=np.zeros(0, dtype=np.int64),
@@ -307,12 +307,40 @@ def test_a_corrupt_cache_is_rebuilt_with_a_warning(world: GridMap, tmp_path: Pat
 
 def test_the_cache_key_follows_the_map_and_the_settings(world: GridMap) -> None:
     fan = FanModel(rays=180, max_range=10.0, range_resolution=0.05)
-    key = IRIndex.cache_key(world, fan, IndexSettings())
-    assert key == IRIndex.cache_key(world, fan, IndexSettings())
-    assert key != IRIndex.cache_key(world, fan, IndexSettings(split_at_jump=0.0))
-    assert key != IRIndex.cache_key(world, replace(fan, rays=360), IndexSettings())
+    defaults = IRSettings().index_settings()
+    key = IRIndex.cache_key(world, fan, defaults)
+    assert key == IRIndex.cache_key(world, fan, IRSettings().index_settings())
+    assert key != IRIndex.cache_key(world, fan, replace(defaults, split_at_jump=0.0))
+    assert key != IRIndex.cache_key(world, replace(fan, rays=360), defaults)
     moved = GridMap(world.data, world.resolution, (1.0, 0.0))
-    assert key != IRIndex.cache_key(moved, fan, IndexSettings())
+    assert key != IRIndex.cache_key(moved, fan, defaults)
+
+
+def test_index_settings_come_from_ir_settings_and_only_index_parameters_change_the_key(world: GridMap) -> None:
+    with pytest.raises(TypeError):
+        IndexSettings()  # no second set of defaults to drift from IRSettings'
+    fan = FanModel(rays=180, max_range=10.0, range_resolution=0.05)
+    base = IRSettings()
+    key = IRIndex.cache_key(world, fan, base.index_settings())
+    changed = {
+        "grid_resolution": 0.1,
+        "min_clearance": 0.3,
+        "unknown_blocks": True,
+        "pattern_max_range": 4.0,
+        "pattern_range_bin": 0.2,
+        "pattern_terms_per_end": 12,
+        "min_pattern_beams": 5,
+        "split_at_jump": 0.0,
+    }
+    assert set(changed) == {f.name for f in fields(IndexSettings)}
+    for name, value in changed.items():
+        assert getattr(base, name) != value
+        index_settings = replace(base, **{name: value}).index_settings()
+        assert getattr(index_settings, name) == value
+        assert IRIndex.cache_key(world, fan, index_settings) != key, name
+    # query and tracking settings leave the index (and its cache file) alone
+    for name, value in {"particle_count": 50, "heading_step": math.radians(10.0), "use_idf": False, "progress": False}.items():
+        assert IRIndex.cache_key(world, fan, replace(base, **{name: value}).index_settings()) == key, name
 
 
 # -- bad input ----------------------------------------------------------------------------------

@@ -331,16 +331,11 @@ class IRSettings:
         return cls(**kwargs)
 
     def index_settings(self) -> IndexSettings:
-        return IndexSettings(
-            grid_resolution=self.grid_resolution,
-            min_clearance=self.min_clearance,
-            unknown_blocks=self.unknown_blocks,
-            pattern_max_range=self.pattern_max_range,
-            pattern_range_bin=self.pattern_range_bin,
-            pattern_terms_per_end=self.pattern_terms_per_end,
-            min_pattern_beams=self.min_pattern_beams,
-            split_at_jump=self.split_at_jump,
-        )
+        """The precomputation settings (and so the cache key) taken from the fields of the same names.
+
+        :class:`~.ir_index.IndexSettings` has no defaults of its own: these are the only ones.
+        """
+        return IndexSettings(**{f.name: getattr(self, f.name) for f in fields(IndexSettings)})
 
     @property
     def heading_count(self) -> int:

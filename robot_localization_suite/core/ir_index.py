@@ -152,17 +152,19 @@ class IndexSettings:
         split_at_jump: also delimit patterns where consecutive ranges differ by more
             than this [m]; 0 follows the paper (no-returns only).
 
-    The defaults are :class:`~.ir.IRSettings`'s, which gives their sources.
+    No defaults here: :class:`~.ir.IRSettings` holds them (with their sources) and
+    builds this from its fields of the same names (``IRSettings().index_settings()``),
+    so that the two can never disagree.
     """
 
-    grid_resolution: float = 0.05
-    min_clearance: float = 0.15
-    unknown_blocks: bool = False
-    pattern_max_range: float = 5.5
-    pattern_range_bin: float = 0.10
-    pattern_terms_per_end: int = 30
-    min_pattern_beams: int = 3
-    split_at_jump: float = 0.5
+    grid_resolution: float
+    min_clearance: float
+    unknown_blocks: bool
+    pattern_max_range: float
+    pattern_range_bin: float
+    pattern_terms_per_end: int
+    min_pattern_beams: int
+    split_at_jump: float
 
     def __post_init__(self) -> None:
         positive = ("grid_resolution", "pattern_max_range", "pattern_range_bin")
