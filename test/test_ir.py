@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -341,6 +342,41 @@ def test_index_settings_come_from_ir_settings_and_only_index_parameters_change_t
     # query and tracking settings leave the index (and its cache file) alone
     for name, value in {"particle_count": 50, "heading_step": math.radians(10.0), "use_idf": False, "progress": False}.items():
         assert IRIndex.cache_key(world, fan, replace(base, **{name: value}).index_settings()) == key, name
+
+
+def test_writing_an_index_prunes_the_least_recently_used_ones_beyond_the_budget(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    data = np.zeros((40, 60), dtype=np.int8)  # a 3 m x 2 m room with a pillar: a small, fast index
+    data[[0, -1], :] = data[:, [0, -1]] = 100
+    data[15:20, 20:25] = 100
+    room = GridMap(data, RES, (0.0, 0.0))
+    fan = FanModel(rays=90, max_range=5.0, range_resolution=0.05)
+    index_settings = replace(settings(), grid_resolution=0.2).index_settings()
+    directory = tmp_path / "ir"
+    directory.mkdir()
+    stale = []
+    for number in range(3):  # indexes of other maps, last used long ago (oldest first)
+        stale.append(directory / f"other{number}.npz")
+        stale[-1].write_bytes(b"x" * 2**20)  # 1 MB each
+        os.utime(stale[-1], (1000.0 + number, 1000.0 + number))
+    with caplog.at_level(logging.INFO, logger="robot_localization_suite.core.ir_index"):
+        index = IRIndex.load_or_build(room, fan, index_settings, cache_dir=tmp_path, progress=False,
+                                      cache_budget_mb=1.5)
+    written = index.cache_path
+    assert written is not None and written.is_file() and written.stat().st_size < 0.4 * 2**20
+    # 3 MB + the new index (< 0.4 MB) over a 1.5 MB budget: the two oldest files go, never the one just written
+    assert [path.exists() for path in stale] == [False, False, True]
+    assert sum(f"deleted the least recently used {path}" in caplog.text for path in stale) == 2
+    # a cache hit counts as a use: the loaded index outlives a newer file at the next pruning
+    os.utime(written, (2000.0, 2000.0))
+    os.utime(stale[2], (3000.0, 3000.0))
+    assert IRIndex.load_or_build(room, fan, index_settings, cache_dir=tmp_path, progress=False).build_seconds == 0.0
+    other = IRIndex.load_or_build(room, fan, replace(index_settings, split_at_jump=0.0), cache_dir=tmp_path,
+                                  progress=False, cache_budget_mb=0.9)
+    # 1 MB + two indexes (< 0.4 MB each) over 0.9 MB: the file unused longest goes, and that is the 1 MB one now
+    assert other.cache_path is not None and other.cache_path != written
+    assert sorted(directory.iterdir()) == sorted([written, other.cache_path])
 
 
 # -- bad input ----------------------------------------------------------------------------------

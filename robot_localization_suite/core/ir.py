@@ -184,7 +184,9 @@ class IRSettings:
         localized_spread [m], seed.
     Cache:
         cache_dir ('' = ``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``),
-        use_cache, progress (tqdm bar while precomputing).
+        use_cache, progress (tqdm bar while precomputing), cache_budget_mb [MB] (after writing
+        an index, the least recently used ones in ``<cache_dir>/ir/`` are deleted down to this;
+        0 = ``$RLS_CACHE_BUDGET_MB`` or 2048, room for 5-15 indexes of 120-400 MB; see core/cache.py).
     """
 
     beam_count: int = 0
@@ -239,6 +241,7 @@ class IRSettings:
     cache_dir: str = ""
     use_cache: bool = True
     progress: bool = True
+    cache_budget_mb: float = 0.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -273,6 +276,7 @@ class IRSettings:
             "lost_score_threshold",
             "lost_score_ratio",
             "global_check_margin",
+            "cache_budget_mb",
         )
         at_least_one = (
             "pattern_terms_per_end",
@@ -581,6 +585,7 @@ class IRLocalizer:
             cache_dir=Path(s.cache_dir).expanduser() if s.cache_dir else None,
             use_cache=s.use_cache,
             progress=s.progress,
+            cache_budget_mb=s.cache_budget_mb,
         )
         _LOG.info("IR index ready: %s", self.index.describe())
 

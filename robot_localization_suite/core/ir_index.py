@@ -33,7 +33,10 @@ no anchor and is not indexed; ``split_at_jump`` optionally also delimits
 patterns at range discontinuities so that such places get anchors too.
 
 Everything here is deterministic; the cache file is keyed by the map
-fingerprint and a hash of every setting that changes its content.
+fingerprint and a hash of every setting that changes its content. The
+``ir/`` cache directory is kept within a size budget (``cache_budget_mb``,
+``$RLS_CACHE_BUDGET_MB``, 2 GB by default): after a new index is written the
+least recently used indexes are deleted (:func:`~.cache.prune_cache`).
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
+from .cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
 from .errors import CacheError
 from .grid_map import GridMap
 from .raycast import RayCaster
@@ -79,12 +83,6 @@ NO_RETURN = 255
 MAX_HIT_CODE = 254
 #: Bump when the cache layout or the meaning of a stored array changes.
 CACHE_VERSION = 4
-
-
-def default_cache_dir() -> Path:
-    """``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``."""
-    env = os.environ.get("RLS_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "robot_localization_suite"
 
 
 @dataclass(frozen=True)
@@ -718,15 +716,27 @@ class IRIndex:
         cache_dir: Path | None = None,
         use_cache: bool = True,
         progress: bool = True,
+        cache_budget_mb: float = 0.0,
     ) -> IRIndex:
-        """The cached index of this map and these settings, built (and cached) when missing or corrupt."""
+        """The cached index of this map and these settings, built (and cached) when missing or corrupt.
+
+        After writing a new index, the least recently used ones in the ``ir/`` cache directory are
+        deleted until it holds at most ``cache_budget_mb`` [MB] (0: ``$RLS_CACHE_BUDGET_MB`` or 2048;
+        see :mod:`~.cache`). A loaded index counts as used.
+
+        Raises:
+            ValueError: on a bad budget (checked before building).
+        """
         path = None
         if use_cache:
+            budget = cache_budget_bytes(cache_budget_mb)
             directory = (cache_dir or default_cache_dir()) / "ir"
             path = directory / f"{cls.cache_key(grid_map, fan, settings)}.npz"
             if path.is_file():
                 try:
-                    return cls.load(path, fan, settings)
+                    index = cls.load(path, fan, settings)
+                    mark_used(path)
+                    return index
                 except CacheError as exc:
                     _LOG.warning("%s; rebuilding it", exc)
         index = cls.build(grid_map, fan, settings, progress=progress)
@@ -736,6 +746,8 @@ class IRIndex:
                 index.cache_path = path
             except OSError as exc:
                 _LOG.warning("could not write the IR cache %s: %s", path, exc)
+            else:
+                prune_cache(path.parent, budget, keep=path, log=lambda text: _LOG.info("IR %s", text))
         return index
 
     def describe(self) -> dict[str, Any]:

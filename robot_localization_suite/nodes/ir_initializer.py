@@ -99,6 +99,9 @@ PARAMS = (
     ParamSpec("cache_dir", _D.cache_dir, "index cache directory; empty: $RLS_CACHE_DIR or ~/.cache/robot_localization_suite"),
     ParamSpec("use_cache", _D.use_cache, "load/save the precomputed index on disk"),
     ParamSpec("progress", _D.progress, "show a progress bar while precomputing"),
+    ParamSpec("cache_budget_mb", _D.cache_budget_mb,
+              "after writing an index, delete the least recently used ones beyond this [MB]; 0: $RLS_CACHE_BUDGET_MB or 2048",
+              0.0, 1e9),
 )
 
 

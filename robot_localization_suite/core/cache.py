@@ -1,0 +1,150 @@
+"""The on-disk precomputation cache shared by the localizers: where it lives and how it is kept bounded.
+
+Every localizer that precomputes something from a map (IR's index, PIL's
+pseudo-images) writes one file per map + parameter combination into its own
+subdirectory of :func:`default_cache_dir`. Without a bound those files pile up
+for ever (an IR index is 120-400 MB), so after writing a new file a localizer
+calls :func:`prune_cache` on its subdirectory: the least recently used files
+are deleted until the subdirectory fits :func:`cache_budget_bytes`.
+
+Choices:
+
+* "Recently used" is the file's modification time. A writer sets it by
+  writing; a reader sets it with :func:`mark_used` on every cache hit. The
+  access time is not used: most file systems are mounted ``relatime`` or
+  ``noatime`` and do not keep it.
+* The budget is per subdirectory (``ir/``, ``pil/``): one localizer's files
+  never push out another's.
+* The file just written is never deleted, even when it alone exceeds the
+  budget (it is needed now; a warning says so).
+* Only names matching the given pattern are considered (``*.npz``), so a
+  half-written ``*.npz.tmp<pid>`` of a concurrent writer is left alone. A
+  concurrent reader whose file is deleted from under it finds it missing or
+  unreadable (a ``CacheError``) and rebuilds it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+__all__ = [
+    "CACHE_BUDGET_ENV",
+    "DEFAULT_CACHE_BUDGET_MB",
+    "cache_budget_bytes",
+    "default_cache_dir",
+    "mark_used",
+    "prune_cache",
+]
+
+_LOG = logging.getLogger(__name__)
+
+#: Environment variable giving the budget of each cache subdirectory [MB].
+CACHE_BUDGET_ENV = "RLS_CACHE_BUDGET_MB"
+#: Budget of each cache subdirectory when neither a setting nor the environment gives one [MB]:
+#: room for 5-15 IR indexes of the maps in config/maps (120-400 MB each).
+DEFAULT_CACHE_BUDGET_MB = 2048.0
+
+_BYTES_PER_MB = 1024 * 1024
+
+
+def default_cache_dir() -> Path:
+    """``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``."""
+    env = os.environ.get("RLS_CACHE_DIR", "")
+    return Path(env) if env else Path.home() / ".cache" / "robot_localization_suite"
+
+
+def cache_budget_bytes(budget_mb: float = 0.0) -> int:
+    """The size budget [bytes] of one cache subdirectory.
+
+    Args:
+        budget_mb: the budget [MB, 2**20 bytes]; 0: ``$RLS_CACHE_BUDGET_MB`` when set,
+            else :data:`DEFAULT_CACHE_BUDGET_MB`.
+
+    Raises:
+        ValueError: on a negative or non-finite budget, or an unreadable ``$RLS_CACHE_BUDGET_MB``.
+    """
+    source = "budget_mb"
+    if budget_mb == 0.0:
+        env = os.environ.get(CACHE_BUDGET_ENV, "").strip()
+        if env:
+            source = f"${CACHE_BUDGET_ENV}"
+            try:
+                budget_mb = float(env)
+            except ValueError:
+                raise ValueError(f"${CACHE_BUDGET_ENV} must be a number of megabytes, got {env!r}") from None
+        else:
+            budget_mb = DEFAULT_CACHE_BUDGET_MB
+    if not (math.isfinite(budget_mb) and budget_mb >= 0.0):
+        raise ValueError(f"{source} must be >= 0 and finite [MB], got {budget_mb!r}")
+    return int(budget_mb * _BYTES_PER_MB)
+
+
+def mark_used(path: Path) -> None:
+    """Record a cache hit on ``path`` (its modification time becomes now) for :func:`prune_cache`."""
+    try:
+        os.utime(path)
+    except OSError as exc:  # read-only cache: it is still usable, only its order is not kept
+        _LOG.debug("could not mark %s as used: %s", path, exc)
+
+
+def prune_cache(
+    directory: Path,
+    budget_bytes: int,
+    *,
+    keep: Path,
+    pattern: str = "*.npz",
+    log: Callable[[str], None] | None = None,
+) -> list[Path]:
+    """Delete the least recently used ``pattern`` files of ``directory`` until they total at most ``budget_bytes``.
+
+    Args:
+        directory: one cache subdirectory (not searched recursively).
+        budget_bytes: the size the files may total [bytes].
+        keep: the file just written; never deleted.
+        pattern: glob of the cache files.
+        log: ``log(text)`` for each deletion; default: this module's logger at INFO.
+
+    Returns:
+        The deleted files, oldest first.
+    """
+    emit = log or _LOG.info
+    entries = []
+    for path in directory.glob(pattern):
+        try:
+            status = path.stat()
+        except OSError:  # deleted meanwhile by another process
+            continue
+        if path.is_file():
+            entries.append((status.st_mtime, status.st_size, path))
+    total = sum(size for _, size, _ in entries)
+    if total <= budget_bytes:
+        return []
+    keep_resolved = keep.resolve()
+    removed = []
+    for _, size, path in sorted(entries, key=lambda entry: (entry[0], str(entry[2]))):
+        if total <= budget_bytes:
+            break
+        if path.resolve() == keep_resolved:
+            continue
+        try:
+            path.unlink()
+        except FileNotFoundError:  # another process pruned it first
+            total -= size
+            continue
+        except OSError as exc:
+            _LOG.warning("could not delete the cache file %s: %s", path, exc)
+            continue
+        total -= size
+        removed.append(path)
+        emit(f"cache over its {budget_bytes / _BYTES_PER_MB:.1f} MB budget: deleted the least recently used {path} "
+             f"({size / _BYTES_PER_MB:.1f} MB)")
+    if total > budget_bytes:
+        _LOG.warning(
+            "cache %s still holds %.1f MB after pruning, over its %.1f MB budget (the file just written, %s, is kept)",
+            directory, total / _BYTES_PER_MB, budget_bytes / _BYTES_PER_MB, keep,
+        )
+    return removed

@@ -1,0 +1,92 @@
+"""The shared on-disk cache helpers (core/cache.py): directory, budget, least-recently-used pruning."""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import pytest
+
+from robot_localization_suite.core.cache import (
+    CACHE_BUDGET_ENV,
+    DEFAULT_CACHE_BUDGET_MB,
+    cache_budget_bytes,
+    default_cache_dir,
+    mark_used,
+    prune_cache,
+)
+
+MB = 1024 * 1024
+
+
+def _file(directory: Path, name: str, size: int, mtime: float) -> Path:
+    path = directory / name
+    path.write_bytes(b"x" * size)
+    os.utime(path, (mtime, mtime))
+    return path
+
+
+def test_the_cache_directory_follows_rls_cache_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("RLS_CACHE_DIR", str(tmp_path))
+    assert default_cache_dir() == tmp_path
+    monkeypatch.delenv("RLS_CACHE_DIR")
+    assert default_cache_dir() == Path.home() / ".cache" / "robot_localization_suite"
+
+
+def test_the_budget_is_the_setting_else_the_environment_else_the_default(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(CACHE_BUDGET_ENV, raising=False)
+    assert cache_budget_bytes(0.0) == int(DEFAULT_CACHE_BUDGET_MB * MB)
+    assert cache_budget_bytes(3.0) == 3 * MB
+    monkeypatch.setenv(CACHE_BUDGET_ENV, "0.5")
+    assert cache_budget_bytes(0.0) == MB // 2
+    assert cache_budget_bytes(3.0) == 3 * MB  # an explicit setting wins over the environment
+    monkeypatch.setenv(CACHE_BUDGET_ENV, "lots")
+    with pytest.raises(ValueError, match="RLS_CACHE_BUDGET_MB.*'lots'"):
+        cache_budget_bytes(0.0)
+    with pytest.raises(ValueError, match="-1.0"):
+        cache_budget_bytes(-1.0)
+
+
+def test_pruning_deletes_the_least_recently_used_files_down_to_the_budget(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # five 100-byte files used at t = 1000 (oldest) .. 5000; the one just written is the oldest by mtime
+    # (a clock step back must not make it a victim); a tmp file of a concurrent writer and another kind of file
+    written = _file(tmp_path, "e_written.npz", 100, 1000.0)
+    old = [_file(tmp_path, f"{name}.npz", 100, mtime) for name, mtime in (("a", 2000.0), ("b", 3000.0), ("c", 4000.0))]
+    newest = _file(tmp_path, "d.npz", 100, 5000.0)
+    in_progress = _file(tmp_path, "f.npz.tmp123", 500, 500.0)
+    other = _file(tmp_path, "notes.txt", 500, 500.0)
+    with caplog.at_level(logging.INFO, logger="robot_localization_suite.core.cache"):
+        removed = prune_cache(tmp_path, 250, keep=written)
+    # 500 bytes of .npz, budget 250: drop a, b, c (oldest first) -> written + d = 200 bytes
+    assert removed == old
+    assert written.is_file() and newest.is_file() and in_progress.is_file() and other.is_file()
+    assert not any(path.exists() for path in old)
+    messages = " ".join(record.getMessage() for record in caplog.records)
+    assert all(str(path) in messages for path in old)
+    # within the budget now: nothing more goes
+    assert prune_cache(tmp_path, 250, keep=written) == []
+
+
+def test_the_file_just_written_is_kept_even_alone_over_the_budget(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    written = _file(tmp_path, "big.npz", 300, 2000.0)
+    older = _file(tmp_path, "old.npz", 100, 1000.0)
+    lines: list[str] = []
+    with caplog.at_level(logging.WARNING, logger="robot_localization_suite.core.cache"):
+        removed = prune_cache(tmp_path, 200, keep=written, log=lines.append)
+    assert removed == [older] and written.is_file()
+    assert len(lines) == 1 and "old.npz" in lines[0]
+    assert any("still holds" in record.getMessage() for record in caplog.records)
+
+
+def test_a_cache_hit_makes_a_file_the_most_recently_used(tmp_path: Path) -> None:
+    hit = _file(tmp_path, "hit.npz", 100, 1000.0)
+    other = _file(tmp_path, "other.npz", 100, 2000.0)
+    written = _file(tmp_path, "new.npz", 100, 3000.0)
+    mark_used(hit)
+    assert hit.stat().st_mtime > 3000.0
+    assert prune_cache(tmp_path, 200, keep=written) == [other]
+    assert hit.is_file()
+    mark_used(tmp_path / "missing.npz")  # a file pruned by another process meanwhile: no error
