@@ -9,9 +9,11 @@ import os
 import numpy as np
 import pytest
 from echo_localizer import EchoLocalizer
+from tqdm import tqdm
 
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.progress import progress_disabled
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.bag import BagWriter
@@ -239,6 +241,38 @@ def test_run_in_a_child_process(kidnap_bag, tmp_path):
     # The child's own peak (python + numpy + rclpy), not this test process's size inherited through fork.
     assert 50 < fields["peak_rss_mb"] < 300 < bench._own_peak_rss_mb()
     del ballast
+
+
+class BarredEcho(EchoLocalizer):
+    """The echo with a precomputation progress bar on set_map, switched like IR's (core/progress.py)."""
+
+    def set_map(self, grid_map):
+        super().set_map(grid_map)
+        for _ in tqdm(range(3), desc="BARRED PRECOMPUTATION", disable=progress_disabled(True)):
+            pass
+
+
+def test_child_runs_show_precomputation_bars_only_when_asked(kidnap_bag, tmp_path, capfd):
+    path, truth = kidnap_bag
+    spec = bench.LocalizerSpec("barred", functools.partial(BarredEcho, truth, constant_offset))
+    before = os.environ.get("TQDM_DISABLE")
+    shown = {}
+    for child_progress in (False, True):
+        summary = bench.run_benchmark([path], [spec], tmp_path / str(child_progress), isolate=True, plots=False,
+                                      child_progress=child_progress)
+        assert summary["room_kidnap"]["barred"]["correct_rate"] == 1.0  # the run itself is unchanged
+        shown[child_progress] = "BARRED PRECOMPUTATION" in capfd.readouterr().err
+    assert shown == {False: False, True: True}  # rls_bench without / with -v
+    assert os.environ.get("TQDM_DISABLE") == before  # set for the child only
+
+
+def test_the_verbose_flag_turns_the_child_runs_bars_on(kidnap_bag, tmp_path, monkeypatch):
+    path, _ = kidnap_bag
+    calls = []
+    monkeypatch.setattr(bench, "run_benchmark", lambda *args, **kwargs: calls.append(kwargs) or {})
+    for extra in ([], ["-v"]):
+        assert bench.main([str(path), "--localizers", "mcl_baseline", "--out", str(tmp_path), *extra]) == 0
+    assert [call["child_progress"] for call in calls] == [False, True]
 
 
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):

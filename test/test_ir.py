@@ -26,6 +26,8 @@ from robot_localization_suite.core.ir_index import (
     HitIndex,
     IndexSettings,
     IRIndex,
+    candidate_positions,
+    cast_fans,
     extract_runs,
     pattern_terms,
 )
@@ -377,6 +379,25 @@ def test_writing_an_index_prunes_the_least_recently_used_ones_beyond_the_budget(
     # 1 MB + two indexes (< 0.4 MB each) over 0.9 MB: the file unused longest goes, and that is the 1 MB one now
     assert other.cache_path is not None and other.cache_path != written
     assert sorted(directory.iterdir()) == sorted([written, other.cache_path])
+
+
+@pytest.mark.parametrize(("tqdm_disable", "progress", "shown"),
+                         [(None, True, True), ("1", True, False), (None, False, False), ("0", True, True)])
+def test_the_precomputation_bar_follows_the_setting_unless_tqdm_disable_is_set(
+    tqdm_disable: str | None, progress: bool, shown: bool, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # rls_bench's child runs set TQDM_DISABLE=1; an interactive run (unset) shows the bar when progress is on
+    if tqdm_disable is None:
+        monkeypatch.delenv("TQDM_DISABLE", raising=False)
+    else:
+        monkeypatch.setenv("TQDM_DISABLE", tqdm_disable)
+    data = np.zeros((20, 20), dtype=np.int8)
+    data[[0, -1], :] = data[:, [0, -1]] = 100
+    room = GridMap(data, RES, (0.0, 0.0))
+    positions = candidate_positions(room, 0.1, 0.0)
+    cast_fans(room, positions, FanModel(rays=16, max_range=2.0, range_resolution=0.05), progress=progress)
+    assert ("IR ray fans" in capsys.readouterr().err) == shown
 
 
 # -- bad input ----------------------------------------------------------------------------------

@@ -184,7 +184,8 @@ class IRSettings:
         localized_spread [m], seed.
     Cache:
         cache_dir ('' = ``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``),
-        use_cache, progress (tqdm bar while precomputing), cache_budget_mb [MB] (after writing
+        use_cache, progress (tqdm bar while precomputing; off whatever this says when
+        ``$TQDM_DISABLE`` is set, as in rls_bench's child runs: core/progress.py), cache_budget_mb [MB] (after writing
         an index, the least recently used ones in ``<cache_dir>/ir/`` are deleted down to this;
         0 = ``$RLS_CACHE_BUDGET_MB`` or 2048, room for 5-15 indexes of 120-400 MB; see core/cache.py).
     """

@@ -60,6 +60,7 @@ from tqdm.auto import tqdm
 from .cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
 from .errors import CacheError
 from .grid_map import GridMap
+from .progress import progress_disabled
 from .raycast import RayCaster
 
 __all__ = [
@@ -215,7 +216,7 @@ def cast_fans(
     angles = fan.angles()
     fans = np.empty((len(positions), fan.rays), dtype=np.uint8)
     poses = np.zeros((min(chunk, max(len(positions), 1)), 3))
-    bar = tqdm(total=len(positions), desc="IR ray fans", unit="pos", disable=not progress, leave=False)
+    bar = tqdm(total=len(positions), desc="IR ray fans", unit="pos", disable=progress_disabled(progress), leave=False)
     for start in range(0, len(positions), chunk):
         stop = min(start + chunk, len(positions))
         poses_chunk = poses[: stop - start]
@@ -582,7 +583,7 @@ class IRIndex:
         settings = self.settings
         fans = self.fans
         cap, jump, divisor = self.pattern_cap_code, self.jump_codes, self.pattern_divisor
-        steps = tqdm(total=4, desc="IR index", disable=not progress, leave=False)
+        steps = tqdm(total=4, desc="IR index", disable=progress_disabled(progress), leave=False)
         counts = _count_fan_runs(fans, cap, jump, settings.min_pattern_beams)
         offsets = np.concatenate([[0], np.cumsum(counts)])
         total = int(offsets[-1])

@@ -15,7 +15,10 @@ that ``peak_rss_mb`` is that run's own peak (``VmHWM`` of the child; not
 fork that precedes the exec) and a
 crash or hang in one localizer cannot take the table down; ``--in-process``
 runs them in this process instead (peak RSS is then sampled with psutil after
-each message, which misses spikes inside an update).
+each message, which misses spikes inside an update). A child's output goes to
+the same (often logged) stderr, so it runs with ``TQDM_DISABLE=1`` unless
+``-v`` is given: the localizers' precomputation progress bars that honour it
+(``core/progress.py``: IR's index) stay off; nothing measured changes.
 
 Inputs of a run: ``/odom`` to ``adapter.on_odom_msg``; ``/scan`` to
 ``adapter.on_scan_msg`` (laser localizers) or ``/camera/image_raw`` to
@@ -106,6 +109,8 @@ MAP_TOPIC = "/map"
 TRACKING_COVARIANCE = np.diag([0.1**2, 0.1**2, np.deg2rad(5.0) ** 2])
 # Child processes get this long beyond --max-seconds to build, replay and hand back their result.
 _CHILD_GRACE_S = 600.0
+# Environment of a child run without -v: no precomputation progress bars in the output (core/progress.py).
+_QUIET_CHILD_ENV = {"TQDM_DISABLE": "1"}
 
 
 # -- what is benchmarked --------------------------------------------------------------------------
@@ -581,12 +586,27 @@ def _own_peak_rss_mb() -> float:
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / scale, 1)
 
 
-def _run_isolated(func: Callable[..., Any], args: tuple, kwargs: dict, timeout: float) -> tuple[str, Any]:
-    """Run ``func(*args, **kwargs)`` in a fresh spawned process; ``("ok", result)`` or ``("error", text)``."""
+def _run_isolated(
+    func: Callable[..., Any], args: tuple, kwargs: dict, timeout: float, env: Mapping[str, str] | None = None
+) -> tuple[str, Any]:
+    """Run ``func(*args, **kwargs)`` in a fresh spawned process; ``("ok", result)`` or ``("error", text)``.
+
+    ``env``: variables added to the child's environment (a spawned child copies this
+    process's environment when it starts; it is set just for that and restored).
+    """
     context = mp.get_context("spawn")
     receiver, sender = context.Pipe(duplex=False)
     process = context.Process(target=_child_main, args=(sender, func, args, kwargs), daemon=True)
-    process.start()
+    saved = {name: os.environ.get(name) for name in env or {}}
+    try:
+        os.environ.update(env or {})
+        process.start()
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     sender.close()
     answered = False
     try:
@@ -697,8 +717,13 @@ def run_benchmark(
     plots: bool = True,
     honour_skips: bool = False,
     progress: bool = False,
+    child_progress: bool = False,
 ) -> dict[str, dict[str, dict[str, Any]]]:
-    """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots."""
+    """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots.
+
+    ``progress``: a replay progress bar per run; ``child_progress``: the localizers'
+    own precomputation bars in child runs (off: ``TQDM_DISABLE=1`` for the child).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     references = [load_reference(b) for b in bags]
@@ -723,7 +748,8 @@ def run_benchmark(
         started = time.perf_counter()
         if isolate:
             timeout = (max_seconds or 24 * 3600.0) + _CHILD_GRACE_S
-            status, result = _run_isolated(replay_localizer, (reference, spec, grid_map), kwargs, timeout)
+            status, result = _run_isolated(replay_localizer, (reference, spec, grid_map), kwargs, timeout,
+                                           env=None if child_progress else _QUIET_CHILD_ENV)
         else:
             try:
                 status, result = "ok", replay_localizer(reference, spec, grid_map, **kwargs)
@@ -756,8 +782,12 @@ def run_global_fixes(
     isolate: bool = True,
     max_seconds: float | None = None,
     honour_skips: bool = False,
+    child_progress: bool = False,
 ) -> dict[str, dict[str, dict[str, Any]]]:
-    """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary."""
+    """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary.
+
+    ``child_progress``: as in :func:`run_benchmark`.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     references = [load_reference(b) for b in bags]
@@ -771,7 +801,8 @@ def run_global_fixes(
         kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
         if isolate:
             timeout = (max_seconds or 24 * 3600.0) + _CHILD_GRACE_S
-            status, result = _run_isolated(global_fix_localizer, (reference, spec, grid_map), kwargs, timeout)
+            status, result = _run_isolated(global_fix_localizer, (reference, spec, grid_map), kwargs, timeout,
+                                           env=None if child_progress else _QUIET_CHILD_ENV)
         else:
             try:
                 status, result = "ok", global_fix_localizer(reference, spec, grid_map, **kwargs)
@@ -966,7 +997,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
     parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log the localizers' warnings")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log the localizers' warnings and show their precomputation progress bars")
     return parser
 
 
@@ -997,15 +1029,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.global_fixes:
             summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
                                        isolate=not args.in_process, max_seconds=args.max_seconds,
-                                       honour_skips=args.all)
+                                       honour_skips=args.all, child_progress=args.verbose)
         else:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
-                                    plots=not args.no_plots, honour_skips=args.all, progress=True)
+                                    plots=not args.no_plots, honour_skips=args.all, progress=True,
+                                    child_progress=args.verbose)
             if args.with_global_fixes:
                 fixes = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
                                          map_yaml=args.map, isolate=not args.in_process,
-                                         max_seconds=args.max_seconds, honour_skips=args.all)
+                                         max_seconds=args.max_seconds, honour_skips=args.all,
+                                         child_progress=args.verbose)
                 extra = (args.out / "global_fixes" / "summary.md").read_text().replace("# ", "## ", 1)
                 with open(args.out / "summary.md", "a") as stream:
                     stream.write("\n" + extra)
