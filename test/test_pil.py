@@ -340,6 +340,16 @@ def test_cache_directory_comes_from_rls_cache_dir(monkeypatch: pytest.MonkeyPatc
     assert list((tmp_path / "env_cache" / "pil").glob("pil_*.npz"))
 
 
+def test_pil_cache_stays_within_its_budget(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, room: GridMap) -> None:
+    monkeypatch.setenv("RLS_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("RLS_CACHE_BUDGET_MB", "0.000001")  # one byte: only the file just written survives
+    PilLocalizer(PilSettings(max_range=8.0, show_progress=False)).set_map(room)
+    first = list((tmp_path / "pil").glob("pil_*.npz"))
+    PilLocalizer(PilSettings(max_range=8.0, show_progress=False)).set_map(_symmetric_room())
+    second = list((tmp_path / "pil").glob("pil_*.npz"))
+    assert len(first) == 1 and len(second) == 1 and second != first
+
+
 # -- bad input -----------------------------------------------------------------------------------
 def test_bad_readings_are_ignored_and_unusable_scans_raise_scan_error(learned: PilLocalizer, room: GridMap) -> None:
     truth = np.array([2.5, 2.1, 0.4])

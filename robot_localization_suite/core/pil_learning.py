@@ -32,7 +32,9 @@ Choices the paper leaves open, written down:
 Cache: ``$RLS_CACHE_DIR`` (or ``~/.cache/robot_localization_suite``)
 ``/pil/pil_<map fingerprint>_<parameter hash>.npz``, written atomically. A
 file that cannot be read, or whose stored key or shapes do not match, is
-reported with a warning and rebuilt.
+reported with a warning and rebuilt. The ``pil/`` directory is kept within
+the cache budget (:mod:`.cache`: ``$RLS_CACHE_BUDGET_MB``, default 2 GB) by
+deleting the least recently used files after each write.
 """
 
 from __future__ import annotations
@@ -52,8 +54,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
+from .cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
 from .errors import CacheError, MapError
 from .grid_map import GridMap
+from .progress import progress_disabled
 from .raycast import RayCaster
 
 __all__ = ["TileGrid", "PilLearning", "learn_pseudo_images", "default_cache_dir", "LEARNING_VERSION"]
@@ -65,12 +69,6 @@ _MAX_STORABLE_RANGE_M = 65.0  # uint16 millimetres
 _TILES_PER_CHUNK = 256
 
 _logger = logging.getLogger(__name__)
-
-
-def default_cache_dir() -> Path:
-    """``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``."""
-    env = os.environ.get("RLS_CACHE_DIR", "")
-    return Path(env) if env else Path.home() / ".cache" / "robot_localization_suite"
 
 
 @dataclass(frozen=True)
@@ -327,6 +325,7 @@ def learn_pseudo_images(
         try:
             learning = _load_cache(path, key, grid, angle_count)
             learning.seconds = time.perf_counter() - start
+            mark_used(path)
             return learning
         except CacheError as exc:
             emit("warn", f"{exc}; relearning and rewriting it")
@@ -340,7 +339,8 @@ def learn_pseudo_images(
     angles = np.arange(angle_count) * (2.0 * np.pi / angle_count)
     poses = np.column_stack([centres, np.zeros(len(centres))])
     ranges_mm = np.empty((len(centres), angle_count), dtype=np.uint16)
-    with tqdm(total=len(centres), desc="PIL learning", unit="tile", disable=not show_progress, leave=False) as bar:
+    with tqdm(total=len(centres), desc="PIL learning", unit="tile", disable=progress_disabled(show_progress),
+              leave=False) as bar:
         for first in range(0, len(centres), _TILES_PER_CHUNK):
             chunk = slice(first, min(first + _TILES_PER_CHUNK, len(centres)))
             ranges = caster.cast(poses[chunk], angles)
@@ -351,6 +351,7 @@ def learn_pseudo_images(
     if use_cache:
         try:
             _save_cache(path, learning)
+            prune_cache(path.parent, cache_budget_bytes(), keep=path, log=lambda text: emit("info", text))
         except OSError as exc:
             emit("warn", f"could not write the PIL cache {str(path)!r}: {exc}")
     learning.seconds = time.perf_counter() - start
