@@ -31,10 +31,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q test $(PYTEST_ARGS)
 
-# Every localizer over every bag in bags/, plus single-scan global fixes; each run stops
-# after BENCH_MAX_SECONDS of wall time (reported as truncated).
+# Every localizer over every bag in bags/, in global then tracking mode, plus single-scan
+# global fixes; each run stops after BENCH_MAX_SECONDS of wall time (reported as truncated).
 bench: $(STAMP)
-	$(PY) -m robot_localization_suite.tools.bench --all --with-global-fixes --out results \
+	$(PY) -m robot_localization_suite.tools.bench --all --with-tracking --with-global-fixes --out results \
 		--max-seconds $(BENCH_MAX_SECONDS) $(BENCH_ARGS)
 
 lint: $(STAMP)

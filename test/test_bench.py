@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -273,6 +274,26 @@ def test_the_verbose_flag_turns_the_child_runs_bars_on(kidnap_bag, tmp_path, mon
     for extra in ([], ["-v"]):
         assert bench.main([str(path), "--localizers", "mcl_baseline", "--out", str(tmp_path), *extra]) == 0
     assert [call["child_progress"] for call in calls] == [False, True]
+
+
+def test_with_tracking_and_global_fixes_append_their_tables(kidnap_bag, tmp_path, monkeypatch):
+    path, _ = kidnap_bag
+    runs = []
+
+    def fake(kind):
+        def run(bags, specs, out, **kwargs):
+            runs.append((kind, kwargs.get("mode"), Path(out).relative_to(tmp_path).as_posix()))
+            Path(out).mkdir(parents=True, exist_ok=True)
+            (Path(out) / "summary.md").write_text(f"# {kind} {kwargs.get('mode')}\n")
+            return {}
+        return run
+
+    monkeypatch.setattr(bench, "run_benchmark", fake("replay"))
+    monkeypatch.setattr(bench, "run_global_fixes", fake("fixes"))
+    argv = [str(path), "--localizers", "mcl_baseline", "--out", str(tmp_path), "--with-tracking", "--with-global-fixes"]
+    assert bench.main(argv) == 0
+    assert runs == [("replay", "global", "."), ("replay", "tracking", "tracking"), ("fixes", None, "global_fixes")]
+    assert (tmp_path / "summary.md").read_text() == "# replay global\n\n## replay tracking\n\n## fixes None\n"
 
 
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):

@@ -971,6 +971,13 @@ def discover_bags(bags_dir: Path) -> list[Path]:
     return sorted(p for p in bags_dir.iterdir() if (p / "metadata.yaml").is_file())
 
 
+def _append_section(out: Path, sub: str) -> None:
+    """Append ``out/sub/summary.md`` to ``out/summary.md``, its title one level down."""
+    extra = (out / sub / "summary.md").read_text().replace("# ", "## ", 1)
+    with open(out / "summary.md", "a") as stream:
+        stream.write("\n" + extra)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rls_bench",
@@ -994,6 +1001,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--with-global-fixes", action="store_true",
                         help="after the replays, also run --global-fixes into OUT/global_fixes and append its "
                         "table to OUT/summary.md")
+    parser.add_argument("--with-tracking", action="store_true",
+                        help="after global-mode replays, also replay in tracking mode into OUT/tracking and append "
+                        "its table to OUT/summary.md")
     parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
     parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -1035,16 +1045,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
                                     child_progress=args.verbose)
-            if args.with_global_fixes:
-                fixes = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
-                                         map_yaml=args.map, isolate=not args.in_process,
-                                         max_seconds=args.max_seconds, honour_skips=args.all,
-                                         child_progress=args.verbose)
-                extra = (args.out / "global_fixes" / "summary.md").read_text().replace("# ", "## ", 1)
-                with open(args.out / "summary.md", "a") as stream:
-                    stream.write("\n" + extra)
+            if args.with_tracking and args.mode == "global":
                 print(summary_table(summary))
-                summary = fixes
+                summary = run_benchmark(bags, specs, args.out / "tracking", mode="tracking", map_yaml=args.map,
+                                        isolate=not args.in_process, max_seconds=args.max_seconds,
+                                        plots=not args.no_plots, honour_skips=args.all, progress=True,
+                                        child_progress=args.verbose)
+                _append_section(args.out, "tracking")
+            if args.with_global_fixes:
+                print(summary_table(summary))
+                summary = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
+                                           map_yaml=args.map, isolate=not args.in_process,
+                                           max_seconds=args.max_seconds, honour_skips=args.all,
+                                           child_progress=args.verbose)
+                _append_section(args.out, "global_fixes")
     except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:
         print(f"rls_bench: error: {exc}", file=sys.stderr)
         return 1
