@@ -256,7 +256,32 @@ def test_a_scan_without_valid_beams_is_skipped_and_backward_odometry_ignored(off
     assert np.allclose(localizer._odometry_at(10.0), [1.0, 0.0, 0.0])
 
 
+def test_selective_resampling_resamples_only_degenerate_weights(office: GridMap, run: Drive) -> None:
+    outputs = {}
+    for fraction in (0.5, 1.0):
+        localizer = MonteCarloLocalizer(MclSettings(resample_effective_fraction=fraction), office)
+        localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
+        outputs[fraction] = _replay(localizer, run, stop=300)
+        errors = _errors(outputs[fraction], run)
+        assert errors[10:, 0].max() < 0.2  # both track
+    resampled = {f: [("particles_next" in e.details) for _, e in out] for f, out in outputs.items()}
+    assert all(resampled[1.0])  # nav2: every update
+    converged = outputs[0.5][10:]
+    skipped = [not r for r in resampled[0.5][10:]]
+    assert 0 < sum(skipped) < len(skipped)  # some updates keep their weights, some resample
+    for (_, estimate), skip in zip(converged, skipped, strict=True):
+        ess = estimate.details["effective_sample_size"]
+        if skip:
+            assert ess >= 0.5 * estimate.details["particles"]
+        else:
+            assert ess < 0.5 * estimate.details["particles"] or estimate.details["injected"] > 0
+
+
 def test_settings_refuse_bad_values_by_name() -> None:
+    with pytest.raises(ValueError, match="resample_effective_fraction"):
+        MclSettings(resample_effective_fraction=0.0)
+    with pytest.raises(ValueError, match="resample_effective_fraction"):
+        MclSettings(resample_effective_fraction=1.5)
     with pytest.raises(ValueError, match="min_particles"):
         MclSettings(min_particles=3000, max_particles=2000)
     with pytest.raises(ValueError, match="likelihood_field_prob"):

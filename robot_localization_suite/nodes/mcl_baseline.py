@@ -63,6 +63,9 @@ PARAMS = (
     ParamSpec("update_min_d", _D.update_min_d, "translation before a filter update [m] (nav2 0.25)", 0.0, 1e3),
     ParamSpec("update_min_a", _D.update_min_a, "rotation before a filter update [rad] (nav2 0.2)", 0.0, 7.0),
     ParamSpec("resample_interval", _D.resample_interval, "filter updates between resamplings (nav2 1)", 1, 1000),
+    ParamSpec("resample_effective_fraction", _D.resample_effective_fraction,
+              "resample only when the effective sample size is below this fraction of the particles "
+              "(1.0: every resample_interval updates, as nav2)", 0.0, 1.0),
     ParamSpec("recovery_alpha_slow", _D.recovery_alpha_slow,
               "rate of the slow average of the scan fit; 0 with recovery_alpha_fast 0 disables recovery (nav2 0.0, suggests 0.001)", 0.0, 1.0),
     ParamSpec("recovery_alpha_fast", _D.recovery_alpha_fast,
