@@ -25,6 +25,14 @@ def kidnapped_line(jump_at: float = 10.0, jump_y: float = 3.0):
     return metrics.Trajectory(odometry.stamps, truth_poses), odometry
 
 
+def old_place_until(truth: metrics.Trajectory, odometry: metrics.Trajectory, start: float, stop: float):
+    """Outputs naming the old place (where odometry says) from ``start`` to ``stop`` [s], exact otherwise."""
+    outputs = truth.poses.copy()
+    lost = (truth.stamps >= start - 1e-9) & (truth.stamps < stop - 1e-9)
+    outputs[lost] = odometry.poses[lost]
+    return outputs, lost
+
+
 def test_constant_offset_is_correct_but_never_fine():
     truth = straight_line()
     outputs = truth.poses + np.array([0.3, 0.0, 0.0])  # 0.3 m: inside 0.5 m, outside 0.2 m
@@ -67,9 +75,7 @@ def test_kidnapping_recovered_after_two_seconds():
     kidnaps = metrics.detect_kidnappings(truth, odometry)
     stamps = truth.stamps
     # The localizer keeps following odometry (the old place) for 2 s, then snaps to the truth.
-    outputs = truth.poses.copy()
-    lost = (stamps >= 10.0 - 1e-9) & (stamps < 12.0 - 1e-9)
-    outputs[lost] = odometry.poses[lost]
+    outputs, _ = old_place_until(truth, odometry, 10.0, 12.0)
     fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
     assert len(fields["kidnap_recovery_s"]) == 1
     assert fields["kidnap_recovery_s"][0] == pytest.approx(2.0, abs=SCAN_PERIOD)
@@ -95,9 +101,7 @@ def test_rmse_leaves_out_a_long_recovery_but_not_the_tracking_after_it():
     truth, odometry = kidnapped_line(jump_at=5.0)
     kidnaps = metrics.detect_kidnappings(truth, odometry)
     stamps = truth.stamps
-    outputs = truth.poses.copy()
-    lost = (stamps >= 5.0 - 1e-9) & (stamps < 13.0 - 1e-9)
-    outputs[lost] = odometry.poses[lost]  # 8 s on the old place, longer than the 5 s minimum
+    outputs, _ = old_place_until(truth, odometry, 5.0, 13.0)  # 8 s on the old place, longer than the 5 s minimum
     outputs[stamps >= 13.0 - 1e-9, 0] += 0.1  # then tracking 0.1 m off
     fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
     assert fields["kidnap_recovery_s"] == [pytest.approx(8.0, abs=SCAN_PERIOD)]
@@ -205,9 +209,7 @@ def test_recovery_counted_in_updates_and_among_candidates():
     truth, odometry = kidnapped_line(jump_at=10.0)
     kidnaps = metrics.detect_kidnappings(truth, odometry)
     stamps = truth.stamps
-    outputs = truth.poses.copy()
-    lost = (stamps >= 10.0 - 1e-9) & (stamps < 12.0 - 1e-9)
-    outputs[lost] = odometry.poses[lost]  # the pose names the old place for 20 updates
+    outputs, lost = old_place_until(truth, odometry, 10.0, 12.0)  # the pose names the old place for 20 updates
     # ...but from the jump on the truth is the second of the candidates (an ambiguous place).
     candidates = np.full((stamps.size, metrics.CANDIDATE_K, 3), np.nan)
     candidates[:, 0] = outputs
