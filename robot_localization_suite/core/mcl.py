@@ -709,15 +709,15 @@ class MonteCarloLocalizer:
         self._fit_fast.update(fit)
         self.w_slow, self.w_fast = self._fit_slow.value, self._fit_fast.value
 
-        estimate = self._estimate(stamp, weights, fit, beam_count)
+        effective = float(1.0 / np.sum(weights * weights))  # effective sample size
+        estimate = self._estimate(stamp, weights, fit, beam_count, effective)
 
         self._updates_since_resample += 1
         # Selective resampling (module docstring): only when the weights have degenerated, or
         # when Augmented MCL wants to inject particles.
         degenerate = (s.resample_effective_fraction >= 1.0
-                      or 1.0 / float(np.sum(weights * weights)) < s.resample_effective_fraction * len(weights))
-        collapsing = self.w_slow > 0.0 and 1.0 - self.w_fast / self.w_slow >= s.recovery_min_injection
-        if self._updates_since_resample >= s.resample_interval and (degenerate or collapsing):
+                      or effective < s.resample_effective_fraction * len(weights))
+        if self._updates_since_resample >= s.resample_interval and (degenerate or self._injection_fraction() > 0.0):
             self._updates_since_resample = 0
             next_count, injected, bins = self._resample(weights, beams)
             estimate.details.update(particles_next=next_count, injected=injected, kld_bins=bins)
@@ -725,7 +725,8 @@ class MonteCarloLocalizer:
         self.last_estimate = estimate
         return estimate
 
-    def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beam_count: int) -> Estimate:
+    def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beam_count: int,
+                  effective: float) -> Estimate:
         s = self.settings
         # Dropping every particle lighter than (1 - mass) / N drops at most (1 - mass) of the
         # weight, so the kept ones hold at least cluster_weight_mass of it (no sort needed).
@@ -743,7 +744,6 @@ class MonteCarloLocalizer:
 
         std_xy = math.sqrt(max(float(np.linalg.eigvalsh(covariance[:2, :2])[-1]), 0.0))
         std_yaw = math.sqrt(max(float(covariance[2, 2]), 0.0))
-        effective = float(1.0 / np.sum(weights**2))
         compact = best_weight >= 0.5 and effective >= s.localized_min_effective_particles and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
         fit_holds = self.w_slow <= 0.0 or self.w_fast >= s.lost_fit_ratio * self.w_slow
         if compact and fit_holds:
@@ -791,15 +791,16 @@ class MonteCarloLocalizer:
         best = np.argpartition(-scores, count - 1)[:count]
         return candidates[best]
 
+    def _injection_fraction(self) -> float:
+        """Augmented MCL's share of random particles, ``max(0, 1 - w_fast / w_slow)``, 0 inside the dead band."""
+        inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0.0 else 0.0
+        return inject if inject >= self.settings.recovery_min_injection else 0.0
+
     def _resample(self, weights: NDArray[np.float64], beams: _Beams) -> tuple[int, int, int]:
         """KLD-sized low-variance resampling with Augmented-MCL injection; returns (count, injected, bins)."""
         s = self.settings
         assert self.grid_map is not None
-        inject = 0.0
-        if self.w_slow > 0.0:
-            inject = max(0.0, 1.0 - self.w_fast / self.w_slow)
-        if inject < s.recovery_min_injection:
-            inject = 0.0
+        inject = self._injection_fraction()
         # KLD: draw candidates in random order (a shuffled low-variance draw, with the
         # injected share uniform) until the bound stops the draw; small batches first so
         # that a converged cloud costs little.
