@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from robot_localization_suite.core.camera import CameraRenderer, CameraSettings
 from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.sim.camera import CameraRenderer, CameraSettings
 
 
 def _room() -> GridMap:

@@ -15,9 +15,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcl_test_world import WAYPOINTS, _follow, office_map
+from robot_localization_suite.core.ial.kernels import contract_box, inmap_hull, obstacle_hull, pave
 
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.ial import (
+from robot_localization_suite.core.ial.localizer import (
     IALSettings,
     IntervalLocalizer,
     ObstacleGrid,
@@ -26,14 +27,13 @@ from robot_localization_suite.core.ial import (
     boxes_hull,
     compose_boxes,
 )
-from robot_localization_suite.core.ial_kernels import contract_box, inmap_hull, obstacle_hull, pave
 from robot_localization_suite.core.interval import angle_hull, interval_cos, interval_mul, interval_sin
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount, Scan
-from robot_localization_suite.core.scenario import OdometryConfig
 from robot_localization_suite.core.se2 import compose, wrap_angle
-from robot_localization_suite.core.simulator import OdometrySimulator
+from robot_localization_suite.core.sim.scenario import OdometryConfig
+from robot_localization_suite.core.sim.simulator import OdometrySimulator
 
 EPS = 0.05  # eps_y of the tests [m]
 RANGE_MAX = 10.0
@@ -426,7 +426,7 @@ def test_settings_refuse_bad_values_by_name() -> None:
 
 def test_the_outlier_case_of_section_5_3_misleads_mcl_while_the_boxes_keep_the_truth() -> None:
     # Figures 13 and 14: 8 outliers make the half-turn twin B explain the scans better than the truth A.
-    from robot_localization_suite.core.mcl import MclSettings, MonteCarloLocalizer
+    from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
     from robot_localization_suite.tools.ial_outlier_case import outlier_case
 
     case = outlier_case(12)

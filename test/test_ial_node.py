@@ -13,13 +13,13 @@ from mcl_test_world import WAYPOINTS, _follow, office_map
 from visualization_msgs.msg import Marker, MarkerArray
 
 from robot_localization_suite import registry
-from robot_localization_suite.core.ial import IALSettings, IntervalLocalizer, boxes_contain
+from robot_localization_suite.core.ial.localizer import IALSettings, IntervalLocalizer, boxes_contain
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
-from robot_localization_suite.core.scenario import OdometryConfig
 from robot_localization_suite.core.se2 import compose
-from robot_localization_suite.core.simulator import OdometrySimulator
+from robot_localization_suite.core.sim.scenario import OdometryConfig
+from robot_localization_suite.core.sim.simulator import OdometrySimulator
 from robot_localization_suite.nodes import ial_localizer
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter

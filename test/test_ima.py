@@ -9,11 +9,17 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from robot_localization_suite.core.ima.tracking import (
+    Hypotheses,
+    ImageError,
+    ImaTopoLocalizer,
+    ImaTrackerSettings,
+    activity_update,
+)
 
-from robot_localization_suite.core.camera import CameraRenderer
 from robot_localization_suite.core.errors import MapError
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.ima import (
+from robot_localization_suite.core.ima.matching import (
     ImaSettings,
     PanoramaBank,
     PlaceMatch,
@@ -29,14 +35,8 @@ from robot_localization_suite.core.ima import (
     save_topomap,
     slot_values,
 )
-from robot_localization_suite.core.ima_tracking import (
-    Hypotheses,
-    ImageError,
-    ImaTopoLocalizer,
-    ImaTrackerSettings,
-    activity_update,
-)
 from robot_localization_suite.core.se2 import angle_difference
+from robot_localization_suite.core.sim.camera import CameraRenderer
 from robot_localization_suite.tools.build_topomap import snapshot_turns
 
 HFOV = 60.0

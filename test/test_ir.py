@@ -16,11 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
-
-from robot_localization_suite.core.errors import CacheError, ScanError
-from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.ir import IRLocalizer, IRSettings
-from robot_localization_suite.core.ir_index import (
+from robot_localization_suite.core.ir.index import (
     NO_RETURN,
     FanModel,
     HitIndex,
@@ -31,7 +27,11 @@ from robot_localization_suite.core.ir_index import (
     extract_runs,
     pattern_terms,
 )
-from robot_localization_suite.core.ir_query import LiveScan, step2_poses
+from robot_localization_suite.core.ir.query import LiveScan, step2_poses
+
+from robot_localization_suite.core.errors import CacheError, ScanError
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import recall_at_k
 from robot_localization_suite.core.raycast import RayCaster
@@ -134,7 +134,7 @@ def test_patterns_are_runs_between_no_returns_and_jumps_with_anchored_ends() -> 
 
 
 def test_a_first_level_hit_does_not_depend_on_the_heading(world: GridMap, localizer: IRLocalizer) -> None:
-    from robot_localization_suite.core.ir_query import live_pattern_terms, resample_scan
+    from robot_localization_suite.core.ir.query import live_pattern_terms, resample_scan
 
     index = localizer.index
     assert index is not None
@@ -298,7 +298,7 @@ def test_a_corrupt_cache_is_rebuilt_with_a_warning(world: GridMap, tmp_path: Pat
             IRIndex.load(path, IRLocalizer(cached, None).settings.fan_model(math.radians(1.0), SCAN_RANGE),
                          cached.index_settings())
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="robot_localization_suite.core.ir_index"):
+        with caplog.at_level(logging.WARNING, logger="robot_localization_suite.core.ir.index"):
             rebuilt = IRLocalizer(cached, world)
             estimate = rebuilt.global_fix(scan)
         assert any("rebuilding" in record.getMessage() for record in caplog.records)
@@ -362,7 +362,7 @@ def test_writing_an_index_prunes_the_least_recently_used_ones_beyond_the_budget(
         stale.append(directory / f"other{number}.npz")
         stale[-1].write_bytes(b"x" * 2**20)  # 1 MB each
         os.utime(stale[-1], (1000.0 + number, 1000.0 + number))
-    with caplog.at_level(logging.INFO, logger="robot_localization_suite.core.ir_index"):
+    with caplog.at_level(logging.INFO, logger="robot_localization_suite.core.ir.index"):
         index = IRIndex.load_or_build(room, fan, index_settings, cache_dir=tmp_path, progress=False,
                                       cache_budget_mb=1.5)
     written = index.cache_path

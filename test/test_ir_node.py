@@ -12,7 +12,7 @@ import yaml
 from test_ir import _drive, floor_map, scan_at
 
 from robot_localization_suite import registry
-from robot_localization_suite.core.ir import IRLocalizer, IRSettings
+from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.se2 import compose, relative
 from robot_localization_suite.nodes import ir_initializer

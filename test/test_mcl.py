@@ -12,19 +12,19 @@ import math
 import numpy as np
 import pytest
 from mcl_test_world import Drive, drive, office_map, pose_error
+from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 
-from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
-from robot_localization_suite.core.mcl import MclSettings, MonteCarloLocalizer
-from robot_localization_suite.core.mcl_particles import (
+from robot_localization_suite.core.filter.particles import (
     cluster_particles,
     kld_particle_count,
     kld_sample_limit,
     low_variance_resample,
     weighted_pose_statistics,
 )
+from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
+from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
 from robot_localization_suite.core.scan import Scan
-from robot_localization_suite.core.sensor_models import BeamModel, LikelihoodFieldModel
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +199,7 @@ def test_measurement_recovery_sampling_injects_poses_that_fit_the_scan(office: G
 
 
 def test_fit_averages_start_as_running_means() -> None:
-    from robot_localization_suite.core.mcl import _RunningAverage
+    from robot_localization_suite.core.mcl.localizer import _RunningAverage
 
     slow, fast = _RunningAverage(0.001), _RunningAverage(0.1)
     for value in [0.1] + [0.5] * 49:  # a poor first fit, then good ones

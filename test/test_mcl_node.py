@@ -13,7 +13,7 @@ from mcl_test_world import drive, office_map
 
 from robot_localization_suite import registry
 from robot_localization_suite.core.localizer import LocalizerStatus
-from robot_localization_suite.core.mcl import MclSettings, MonteCarloLocalizer
+from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
 from robot_localization_suite.nodes import mcl_baseline
 from robot_localization_suite.ros import conversions
 

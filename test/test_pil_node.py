@@ -13,7 +13,7 @@ import yaml
 from robot_localization_suite import registry
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import LocalizerStatus
-from robot_localization_suite.core.pil import PilLocalizer, PilSettings
+from robot_localization_suite.core.pil.localizer import PilLocalizer, PilSettings
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
 from robot_localization_suite.core.se2 import angle_difference, compose

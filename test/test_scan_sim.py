@@ -20,9 +20,9 @@ import pytest
 import yaml
 
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.scenario import load_scenario
 from robot_localization_suite.core.se2 import quaternion_to_yaw
-from robot_localization_suite.core.simulator import Simulator
+from robot_localization_suite.core.sim.scenario import load_scenario
+from robot_localization_suite.core.sim.simulator import Simulator
 from robot_localization_suite.nodes import scan_sim
 from robot_localization_suite.ros.bag import read_bag
 

@@ -18,7 +18,8 @@ from robot_localization_suite.core.errors import ScenarioError
 from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.motion import OdometryMotionModel, odometry_delta
 from robot_localization_suite.core.raycast import RayCaster
-from robot_localization_suite.core.scenario import (
+from robot_localization_suite.core.se2 import angle_difference, relative
+from robot_localization_suite.core.sim.scenario import (
     Kidnapping,
     LaserConfig,
     MotionPlan,
@@ -29,8 +30,7 @@ from robot_localization_suite.core.scenario import (
     load_scenario,
     scenario_from_dict,
 )
-from robot_localization_suite.core.se2 import angle_difference, relative
-from robot_localization_suite.core.simulator import Simulator, ray_circle_ranges
+from robot_localization_suite.core.sim.simulator import Simulator, ray_circle_ranges
 from robot_localization_suite.tools.make_maps import MAP_BUILDERS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -338,7 +338,7 @@ def test_camera_images_at_their_rate_and_lazy_import(room_scenario, monkeypatch:
     assert with_image == [0, 2, 4, 6, 8, 10]  # 5 Hz against a 10 Hz laser
     assert steps[0].image.shape == (24, 32) and steps[0].image.dtype == np.uint8
     # Without a camera section the camera module is never needed.
-    monkeypatch.setitem(sys.modules, "robot_localization_suite.core.camera", None)
+    monkeypatch.setitem(sys.modules, "robot_localization_suite.core.sim.camera", None)
     no_camera = dict(data)
     del no_camera["camera"]
     assert all(s.image is None for s in Simulator(room_scenario(no_camera)).run())

@@ -26,7 +26,7 @@ import numpy as np
 from geometry_msgs.msg import Point
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.ial import IALSettings, IntervalLocalizer
+from ..core.ial.localizer import IALSettings, IntervalLocalizer
 from ..core.localizer import Estimate
 from ..core.scan import LaserMount
 from ..ros.conversions import seconds_to_stamp

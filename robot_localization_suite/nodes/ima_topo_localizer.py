@@ -21,8 +21,8 @@ from typing import Any
 from std_msgs.msg import String
 
 from ..core.errors import MapError
-from ..core.ima import ImaSettings, load_topomap
-from ..core.ima_tracking import ODOMETRY_RESETS, ImaTopoLocalizer, ImaTrackerSettings
+from ..core.ima.matching import ImaSettings, load_topomap
+from ..core.ima.tracking import ODOMETRY_RESETS, ImaTopoLocalizer, ImaTrackerSettings
 from ..core.localizer import Estimate
 from .common import ParamSpec
 from .localizer_node import localizer_node_main

@@ -19,7 +19,7 @@ import math
 import sys
 from typing import Any
 
-from ..core.ir import IRLocalizer, IRSettings
+from ..core.ir.localizer import IRLocalizer, IRSettings
 from .common import ParamSpec
 from .localizer_node import localizer_node_main
 

@@ -16,7 +16,7 @@ import sys
 from dataclasses import fields
 from typing import Any
 
-from ..core.mcl import MclSettings, MonteCarloLocalizer
+from ..core.mcl.localizer import MclSettings, MonteCarloLocalizer
 from .common import ParamSpec
 from .localizer_node import localizer_node_main
 

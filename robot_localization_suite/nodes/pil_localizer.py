@@ -12,7 +12,7 @@ import sys
 from dataclasses import fields
 from typing import Any
 
-from ..core.pil import PilLocalizer, PilSettings
+from ..core.pil.localizer import PilLocalizer, PilSettings
 from .common import ParamSpec
 from .localizer_node import localizer_node_main
 

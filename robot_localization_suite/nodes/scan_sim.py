@@ -42,8 +42,8 @@ import yaml
 
 from ..core.errors import LocalizationSuiteError, ScenarioError
 from ..core.grid_map import load_map_yaml
-from ..core.scenario import LaserConfig, OdometryConfig, Scenario, load_scenario
-from ..core.simulator import SimulationStep, Simulator
+from ..core.sim.scenario import LaserConfig, OdometryConfig, Scenario, load_scenario
+from ..core.sim.simulator import SimulationStep, Simulator
 from .common import ParamSpec
 
 __all__ = [

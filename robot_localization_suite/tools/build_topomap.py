@@ -29,10 +29,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..core.camera import CameraRenderer
 from ..core.errors import LocalizationSuiteError, MapError, ScenarioError
-from ..core.ima import ImaSettings, TopologicalMap, TopoNode, build_panorama, save_topomap
-from ..core.scenario import Scenario, load_scenario
+from ..core.ima.matching import ImaSettings, TopologicalMap, TopoNode, build_panorama, save_topomap
+from ..core.sim.camera import CameraRenderer
+from ..core.sim.scenario import Scenario, load_scenario
 
 __all__ = ["snapshot_turns", "load_nodes", "build_topomap", "main"]
 

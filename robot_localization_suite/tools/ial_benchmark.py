@@ -33,8 +33,8 @@ import numba
 import numpy as np
 
 from ..core.grid_map import GridMap, load_map_yaml
-from ..core.ial import IALSettings, IntervalLocalizer, ObstacleGrid, beam_intervals, boxes_contain
-from ..core.ial_kernels import contract_box, obstacle_hull
+from ..core.ial.kernels import contract_box, obstacle_hull
+from ..core.ial.localizer import IALSettings, IntervalLocalizer, ObstacleGrid, beam_intervals, boxes_contain
 from ..core.raycast import RayCaster
 from ..core.scan import Scan
 

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from ..core import metrics
 from ..core.grid_map import GridMap, load_map_yaml
-from ..core.ir import IRLocalizer, IRSettings
+from ..core.ir.localizer import IRLocalizer, IRSettings
 from ..core.scan import LaserMount, Scan
 from ..core.se2 import compose, inverse
 

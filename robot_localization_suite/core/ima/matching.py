@@ -94,8 +94,8 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import MapError
-from .se2 import wrap_angle
+from ..errors import MapError
+from ..se2 import wrap_angle
 
 __all__ = [
     "FLAT_STD",

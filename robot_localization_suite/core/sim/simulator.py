@@ -48,13 +48,13 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ScenarioError
-from .grid_map import GridMap
-from .motion import OdometryMotionModel, apply_delta, odometry_delta
-from .raycast import RayCaster
-from .scan import Scan
+from ..errors import ScenarioError
+from ..grid_map import GridMap
+from ..motion import OdometryMotionModel, apply_delta, odometry_delta
+from ..raycast import RayCaster
+from ..scan import Scan
+from ..se2 import angle_difference, compose, wrap_angle
 from .scenario import OdometryConfig, Scenario, integrate_unicycle
-from .se2 import angle_difference, compose, wrap_angle
 
 __all__ = ["Simulator", "SimulationStep", "ray_circle_ranges", "apply_range_noise", "OdometrySimulator"]
 

@@ -31,7 +31,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .se2 import angle_difference
+from ..se2 import angle_difference
 
 __all__ = [
     "KLD_BIN_XY",

@@ -43,11 +43,11 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import ScanError
-from .gauss_newton import solve_symmetric_3x3
-from .pil_levels import LevelFunction
-from .scan import Scan
-from .se2 import wrap_angle
+from ..errors import ScanError
+from ..filter.gauss_newton import solve_symmetric_3x3
+from ..scan import Scan
+from ..se2 import wrap_angle
+from .levels import LevelFunction
 
 __all__ = [
     "SensorLayout",

@@ -38,8 +38,8 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .grid_map import GridMap
-from .raycast import RayCaster
+from ..grid_map import GridMap
+from ..raycast import RayCaster
 
 __all__ = ["LikelihoodFieldModel", "BeamModel", "field_log_likelihood"]
 

@@ -15,11 +15,11 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .gauss_newton import solve_symmetric_3x3
-from .grid_map import GridMap
-from .ir_index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
-from .scan import Scan
-from .se2 import wrap_angle
+from ..filter.gauss_newton import solve_symmetric_3x3
+from ..grid_map import GridMap
+from ..scan import Scan
+from ..se2 import wrap_angle
+from .index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
 
 __all__ = [
     "LiveScan",

@@ -65,9 +65,9 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from .errors import MapError, ScenarioError
-from .grid_map import GridMap, load_map_yaml
-from .se2 import angle_difference, wrap_angle
+from ..errors import MapError, ScenarioError
+from ..grid_map import GridMap, load_map_yaml
+from ..se2 import angle_difference, wrap_angle
 
 __all__ = [
     "LaserConfig",

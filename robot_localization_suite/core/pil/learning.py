@@ -54,11 +54,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from .cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
-from .errors import CacheError, MapError
-from .grid_map import GridMap
-from .progress import progress_disabled
-from .raycast import RayCaster
+from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..errors import CacheError, MapError
+from ..grid_map import GridMap
+from ..progress import progress_disabled
+from ..raycast import RayCaster
 
 __all__ = ["TileGrid", "PilLearning", "learn_pseudo_images", "default_cache_dir", "LEARNING_VERSION"]
 

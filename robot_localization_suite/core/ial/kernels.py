@@ -22,7 +22,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .interval import OUTWARD, TWO_PI, scalar_cos, scalar_mul, scalar_sin
+from ..interval import OUTWARD, TWO_PI, scalar_cos, scalar_mul, scalar_sin
 
 __all__ = ["summed_area_table", "obstacle_count", "obstacle_hull", "inmap_hull", "contract_box", "pave", "merge_boxes"]
 

@@ -46,8 +46,8 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .grid_map import GridMap
-from .raycast import RayCaster
+from ..grid_map import GridMap
+from ..raycast import RayCaster
 
 __all__ = ["CameraSettings", "CameraRenderer", "ENCODINGS", "WALL_PHOTOGRAPHS", "texture_atlas"]
 

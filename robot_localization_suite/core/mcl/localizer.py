@@ -159,18 +159,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .grid_map import GridMap
-from .localizer import Estimate, LocalizerStatus
-from .mcl_particles import (
+from ..filter.particles import (
     cluster_particles,
     kld_particle_count,
     low_variance_resample,
     normalize_log_weights,
     weighted_pose_statistics,
 )
-from .motion import OdometryMotionModel
-from .scan import Scan
-from .se2 import angle_difference, wrap_angle
+from ..grid_map import GridMap
+from ..localizer import Estimate, LocalizerStatus
+from ..motion import OdometryMotionModel
+from ..scan import Scan
+from ..se2 import angle_difference, wrap_angle
 from .sensor_models import BeamModel, LikelihoodFieldModel
 
 __all__ = ["MclSettings", "MonteCarloLocalizer", "LASER_MODEL_TYPES", "ROBOT_MODEL_TYPES", "RECOVERY_SAMPLINGS"]

@@ -106,10 +106,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ImageError
-from .ima import ImaSettings, PanoramaBank, PlaceMatch, TopologicalMap, to_grey
-from .localizer import Estimate, LocalizerStatus
-from .se2 import angle_difference, compose, relative, wrap_angle
+from ..errors import ImageError
+from ..localizer import Estimate, LocalizerStatus
+from ..se2 import angle_difference, compose, relative, wrap_angle
+from .matching import ImaSettings, PanoramaBank, PlaceMatch, TopologicalMap, to_grey
 
 ODOMETRY_RESETS = ("winner", "place", "zoom")
 PLAIN_COMPARISON = 0  # PlaceMatch.comparison of image -> panorama without zoom

@@ -118,10 +118,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import ScanError
-from .grid_map import GridMap
-from .ir_index import MAX_HIT_CODE, FanModel, IndexSettings, IRIndex
-from .ir_query import (
+from ..errors import ScanError
+from ..grid_map import GridMap
+from ..localizer import Estimate, LocalizerStatus
+from ..motion import OdometryMotionModel, odometry_delta
+from ..scan import Scan
+from ..se2 import angle_difference, compose, relative, wrap_angle
+from .index import MAX_HIT_CODE, FanModel, IndexSettings, IRIndex
+from .query import (
     DistanceField,
     live_pattern_terms,
     refine_poses,
@@ -130,10 +134,6 @@ from .ir_query import (
     step2_poses,
     suppress_duplicates,
 )
-from .localizer import Estimate, LocalizerStatus
-from .motion import OdometryMotionModel, odometry_delta
-from .scan import Scan
-from .se2 import angle_difference, compose, relative, wrap_angle
 
 __all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 

@@ -164,10 +164,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import MapError
-from .grid_map import GridMap
-from .ial_kernels import merge_boxes, pave, summed_area_table
-from .interval import (
+from ..errors import MapError
+from ..grid_map import GridMap
+from ..interval import (
     MAX_COORDINATE,
     OUTWARD,
     TWO_PI,
@@ -177,10 +176,11 @@ from .interval import (
     interval_sin,
     normalize_angle_intervals,
 )
-from .localizer import Estimate, LocalizerStatus
-from .motion import _MIN_TRANSLATION_FOR_HEADING, odometry_delta
-from .scan import LaserMount, Scan
-from .se2 import angle_difference, compose, inverse, wrap_angle
+from ..localizer import Estimate, LocalizerStatus
+from ..motion import _MIN_TRANSLATION_FOR_HEADING, odometry_delta
+from ..scan import LaserMount, Scan
+from ..se2 import angle_difference, compose, inverse, wrap_angle
+from .kernels import merge_boxes, pave, summed_area_table
 
 __all__ = [
     "IALSettings",

@@ -57,11 +57,11 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from .cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
-from .errors import CacheError
-from .grid_map import GridMap
-from .progress import progress_disabled
-from .raycast import RayCaster
+from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..errors import CacheError
+from ..grid_map import GridMap
+from ..progress import progress_disabled
+from ..raycast import RayCaster
 
 __all__ = [
     "NO_RETURN",

@@ -79,11 +79,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import MapError, ScanError
-from .grid_map import GridMap
-from .localizer import Estimate, LocalizerStatus
-from .pil_learning import PilLearning, learn_pseudo_images
-from .pil_levels import (
+from ..errors import MapError, ScanError
+from ..grid_map import GridMap
+from ..localizer import Estimate, LocalizerStatus
+from ..raycast import RayCaster
+from ..scan import Scan
+from ..se2 import angle_difference, compose, relative, wrap_angle
+from .learning import PilLearning, learn_pseudo_images
+from .levels import (
     LEVEL_FUNCTION_NAMES,
     LevelFunction,
     energy,
@@ -92,7 +95,7 @@ from .pil_levels import (
     pq_fraction,
     profile_quantile,
 )
-from .pil_matching import (
+from .matching import (
     BEAM_MAPPINGS,
     BeamMapping,
     LiveProfile,
@@ -105,9 +108,6 @@ from .pil_matching import (
     sheet_sectors,
     truncated_scores,
 )
-from .raycast import RayCaster
-from .scan import Scan
-from .se2 import angle_difference, compose, relative, wrap_angle
 
 __all__ = ["PilSettings", "PilLocalizer", "make_level_functions"]
 

@@ -1,0 +1,1 @@
+"""The simulated robot behind ``scan_sim``: scenarios, the simulator and the camera renderer."""
