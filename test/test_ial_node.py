@@ -1,9 +1,8 @@
-"""The ial_localizer node module: parameters -> IALSettings, config file, ~/boxes markers, bag replay, a live node."""
+"""The ial_localizer plugin: params file, the adapter's mount, ~/boxes markers, bag replay, the shared node."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -18,40 +17,34 @@ from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
 from robot_localization_suite.core.se2 import compose
+from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.core.sim.scenario import OdometryConfig
 from robot_localization_suite.core.sim.simulator import OdometrySimulator
-from robot_localization_suite.nodes import ial_localizer
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter
 from robot_localization_suite.ros.bag import read_bag
+from robot_localization_suite.ros.extras import IAL_BOXES, boxes_markers
 
 ANGLES = -math.pi + 2.0 * math.pi * np.arange(360) / 360
 
 
-def test_make_localizer_from_the_registry_params_follows_the_config_file(repo_root: Path) -> None:
-    localizer = ial_localizer.make_localizer(registry.localizer_params("ial_localizer"))
+def _ial(**overrides: object) -> IntervalLocalizer:
+    plugin = registry.plugin("ial_localizer")
+    return plugin.create(plugin.load_settings(overrides)[1])
+
+
+def test_the_plugin_follows_the_packaged_params_file_and_the_adapter_gives_it_the_mount(repo_root: Path) -> None:
+    localizer = _ial()
     assert isinstance(localizer, IntervalLocalizer)
     config = yaml.safe_load((repo_root / "config" / "ial_localizer.yaml").read_text())["ial_localizer"]["ros__parameters"]
     for name, value in config.items():
         assert getattr(localizer.settings, name) == pytest.approx(value), name
-    assert localizer.settings.mount == LaserMount()
-    mounted = ial_localizer.make_localizer({"laser_x": 0.2, "laser_yaw": 0.1, "max_outliers": 3})
-    assert mounted.settings.mount == LaserMount(0.2, 0.0, 0.1) and mounted.settings.max_outliers == 3
+    assert localizer.mount == LaserMount()
+    mounted = _ial(max_outliers=3)
+    LocalizerAdapter(mounted, node_name="ial_localizer", log=lambda *_: None, mount=LaserMount(0.2, 0.0, 0.1))
+    assert mounted.mount == LaserMount(0.2, 0.0, 0.1) and mounted.settings.max_outliers == 3
     with pytest.raises(ValueError, match="range_error"):
-        ial_localizer.make_localizer({"range_error": -1.0})
-
-
-def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
-    names = [spec.name for spec in ial_localizer.PARAMS]
-    assert len(names) == len(set(names))
-    assert set(names) == {field.name for field in fields(IALSettings)} - {"mount"}
-    config = yaml.safe_load((repo_root / "config" / "ial_localizer.yaml").read_text())["ial_localizer"]["ros__parameters"]
-    assert set(config) == set(names)
-    for spec in ial_localizer.PARAMS:
-        assert spec.description, spec.name
-        assert type(config[spec.name]) is type(spec.default), spec.name
-        if spec.minimum is not None:
-            assert spec.minimum <= config[spec.name] <= spec.maximum, spec.name
+        _ial(range_error=-1.0)
 
 
 def test_build_extras_draws_each_box_its_headings_and_the_hull() -> None:
@@ -62,9 +55,8 @@ def test_build_extras_draws_each_box_its_headings_and_the_hull() -> None:
     estimate = IntervalLocalizer(IALSettings(), office).global_fix(Scan(2.5, ANGLES.copy(), scan_ranges, 0.1, 10.0))
     count = estimate.details["box_count"]
     assert count >= 1
-    extras = ial_localizer.build_extras(estimate)
-    assert set(extras) == set(ial_localizer.EXTRAS) == {"boxes"}
-    markers = extras["boxes"]
+    assert set(IAL_BOXES) == {"boxes"} and IAL_BOXES["boxes"].kind is MarkerArray
+    markers = IAL_BOXES["boxes"].build(estimate)
     assert isinstance(markers, MarkerArray)
     assert markers.markers[0].action == Marker.DELETEALL
     by_namespace = {m.ns: m for m in markers.markers[1:]}
@@ -76,17 +68,17 @@ def test_build_extras_draws_each_box_its_headings_and_the_hull() -> None:
     assert min(xs) == pytest.approx(box[0, 0]) and max(xs) == pytest.approx(box[0, 1])
     assert all(m.header.frame_id == "map" for m in markers.markers)
     assert markers.markers[1].header.stamp.sec == 2 and markers.markers[1].header.stamp.nanosec == 500_000_000
-    assert len(ial_localizer.build_extras(estimate, max_boxes=1)["boxes"].markers[1].points) == 8
+    assert len(boxes_markers(estimate, max_boxes=1).markers[1].points) == 8
     # an empty list (LOST) only clears the display
     estimate.details["boxes"] = np.zeros((0, 3, 2))
-    assert len(ial_localizer.build_extras(estimate)["boxes"].markers) == 1
+    assert len(boxes_markers(estimate).markers) == 1
 
 
 def test_the_bounded_floor_bag_replayed_through_the_adapter_keeps_the_truth_in_the_boxes(repo_root: Path) -> None:
     # What rls_bench does: bag order, the node's adapter, the config's parameters. Both kidnappings of
     # this bag are visible at once, so every update, kidnappings included, must contain the truth.
     bag = repo_root / "bags" / "floor_kidnap_bounded"
-    localizer = ial_localizer.make_localizer(registry.localizer_params("ial_localizer"))
+    localizer = _ial()
     adapter = LocalizerAdapter(localizer, node_name="ial_localizer", log=lambda level, text: None)
     truth = None
     contained, restarts, statuses = [], [], []
@@ -119,9 +111,7 @@ def test_boxes_are_published_in_the_base_frame_with_a_laser_mount() -> None:
     ranges = np.where(np.isfinite(ranges), ranges + rng.uniform(-0.04, 0.04, ranges.shape), np.inf)
     odometry = OdometrySimulator(OdometryConfig(model="bounded", relative_translation=0.05, absolute_translation=0.002,
                                                 relative_rotation=0.05, absolute_rotation=0.002), rng)
-    localizer = ial_localizer.make_localizer(
-        {"laser_x": mount.x, "laser_y": mount.y, "laser_yaw": mount.yaw, "max_beams": 36, "max_outliers": 2}
-    )
+    localizer = _ial(max_beams=36, max_outliers=2)
     adapter = LocalizerAdapter(localizer, node_name="ial_localizer", log=lambda level, text: None, mount=mount)
     adapter.set_map(office)
     for k in range(len(truth)):
@@ -146,12 +136,11 @@ def test_the_node_handles_a_message_feed_its_extras_and_its_services() -> None:
     truth = _follow(WAYPOINTS, 0, 30, 0.05)
     ranges = RayCaster(office, max_range=10.0).cast(truth, ANGLES).astype(np.float64)
     rclpy.init(args=["ial_localizer", "--ros-args", "-p", "max_outliers:=4", "-p", "max_beams:=40"])
-    node = LocalizerNode(ial_localizer.NODE_NAME, ial_localizer.PARAMS, ial_localizer.make_localizer,
-                         extras=ial_localizer.EXTRAS, extras_builder=ial_localizer.build_extras)
+    node = LocalizerNode(registry.plugin("ial_localizer"), extras=IAL_BOXES)
     published = []
     try:
-        for spec in ial_localizer.PARAMS:
-            assert node.has_parameter(spec.name), spec.name
+        for param in parameters(IALSettings):
+            assert node.has_parameter(param.name), param.name
         assert "boxes" in node.extra_pubs
         localizer = node.localizer
         assert localizer.settings.max_outliers == 4 and localizer.settings.max_beams == 40

@@ -3,35 +3,27 @@
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer, ImaTrackerSettings
 
 from robot_localization_suite import registry
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.errors import MapError, ScenarioError
-from robot_localization_suite.core.ima.matching import ImaSettings, load_topomap
+from robot_localization_suite.core.ima.matching import load_topomap
+from robot_localization_suite.core.ima.settings import ImaSettings
+from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.se2 import angle_difference
 from robot_localization_suite.core.sim.scenario import load_scenario
 from robot_localization_suite.core.sim.simulator import Simulator
-from robot_localization_suite.nodes import ima_topo_localizer
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter
 from robot_localization_suite.ros.bag import bag_topics, read_bag
+from robot_localization_suite.ros.extras import IMA_PLACE
 from robot_localization_suite.tools import build_topomap
-
-_CONVERTED = {
-    "topomap": None,
-    "scale_width": "width",
-    "scale_height": "height",
-    "update_min_d": "min_translation",
-    "update_min_a": "min_rotation",
-}
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +32,13 @@ def scenario(repo_root: Path):
 
 
 # -- parameters -------------------------------------------------------------------------
-def test_make_localizer_from_the_registry_params_gives_the_thesis_values() -> None:
-    localizer = ima_topo_localizer.make_localizer(registry.localizer_params("ima_topo_localizer"))
+def _ima(**overrides: object) -> ImaTopoLocalizer:
+    plugin = registry.plugin("ima_topo_localizer")
+    return plugin.create(plugin.load_settings(overrides)[1])
+
+
+def test_the_plugin_gives_the_thesis_values_and_overrides_reach_the_nested_settings() -> None:
+    localizer = _ima()
     assert isinstance(localizer, ImaTopoLocalizer)
     assert localizer.settings.ima == ImaSettings()
     s = localizer.settings
@@ -49,29 +46,13 @@ def test_make_localizer_from_the_registry_params_gives_the_thesis_values() -> No
     assert (s.match_threshold, s.heading_threshold, s.min_translation) == (0.5, 0.6, 0.3)
     assert s.min_rotation == pytest.approx(math.radians(10.0), abs=1e-4)
     assert len(localizer.names) == 15
-
-
-def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
-    settings_fields = {f.name for f in fields(ImaSettings)} | {f.name for f in fields(ImaTrackerSettings)}
-    names = [spec.name for spec in ima_topo_localizer.PARAMS]
-    for name in names:
-        target = _CONVERTED.get(name, name)
-        assert target is None or target in settings_fields, name
-    config = yaml.safe_load((repo_root / "config" / "ima_topo_localizer.yaml").read_text())
-    section = config["ima_topo_localizer"]["ros__parameters"]
-    assert set(section) == set(names)
-    for spec in ima_topo_localizer.PARAMS:
-        assert spec.description
-        assert type(section[spec.name]) is type(spec.default), spec.name
-    changed = registry.localizer_params("ima_topo_localizer", {"slots": 6, "zoom": 1.0, "update_min_d": 0.5})
-    settings = ima_topo_localizer.make_localizer(changed).settings
+    settings = _ima(slots=6, zoom=1.0, update_min_d=0.5).settings
     assert (settings.ima.slots, settings.ima.zoom, settings.min_translation) == (6, 1.0, 0.5)
 
 
 def test_a_missing_topomap_or_panorama_is_an_error_naming_it(tmp_path: Path, repo_root: Path) -> None:
-    params = registry.localizer_params("ima_topo_localizer", {"topomap": str(tmp_path / "nowhere.yaml")})
     with pytest.raises(MapError, match="nowhere.yaml"):
-        ima_topo_localizer.make_localizer(params)
+        _ima(topomap=str(tmp_path / "nowhere.yaml"))
     source = repo_root / "config" / "topomaps" / "lab" / "topomap.yaml"
     meta = yaml.safe_load(source.read_text())
     meta["panorama_dir"] = str(source.parent)
@@ -79,7 +60,7 @@ def test_a_missing_topomap_or_panorama_is_an_error_naming_it(tmp_path: Path, rep
     broken = tmp_path / "topomap.yaml"
     broken.write_text(yaml.safe_dump(meta))
     with pytest.raises(MapError, match=r"LOST_PLACE\.png"):
-        ima_topo_localizer.make_localizer({**params, "topomap": str(broken)})
+        _ima(topomap=str(broken))
 
 
 # -- the world --------------------------------------------------------------------------
@@ -177,12 +158,11 @@ def _replay(bag: Path, adapter: LocalizerAdapter) -> tuple[list, dict[float, np.
 
 
 def test_lab_camera_targets_correct_place_heading_and_kidnap_recovery(repo_root: Path, scenario) -> None:
-    params = registry.localizer_params("ima_topo_localizer")
     adapter = LocalizerAdapter(
-        ima_topo_localizer.make_localizer(params),
+        _ima(),
         node_name="ima_topo_localizer",
         log=lambda level, text: None,
-        extras_builder=ima_topo_localizer.build_extras,
+        extras_builder=lambda estimate: {"place": IMA_PLACE["place"].build(estimate)},
     )
     outputs, truth = _replay(repo_root / "bags" / "lab_camera", adapter)
     assert len(outputs) > 100
@@ -213,14 +193,7 @@ def test_the_node_publishes_the_place_and_survives_bad_images(repo_root: Path) -
     from robot_localization_suite.nodes.localizer_node import LocalizerNode
 
     rclpy.init(args=["ima_topo_localizer", "--ros-args", "-p", "zoom:=1.0"])
-    node = LocalizerNode(
-        ima_topo_localizer.NODE_NAME,
-        ima_topo_localizer.PARAMS,
-        ima_topo_localizer.make_localizer,
-        extras=ima_topo_localizer.EXTRAS,
-        extras_builder=ima_topo_localizer.build_extras,
-        uses_camera=ima_topo_localizer.USES_CAMERA,
-    )
+    node = LocalizerNode(registry.plugin("ima_topo_localizer"), extras=IMA_PLACE)
     published, warnings = [], []
     try:
         assert node.localizer.settings.ima.zoom == 1.0

@@ -1,50 +1,35 @@
-"""The ir_initializer node module: parameters -> IRSettings, config file, an in-process node fed messages."""
+"""The ir_initializer plugin and the shared node running it, fed messages in-process."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from test_ir import _drive, floor_map, scan_at
 
 from robot_localization_suite import registry
-from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
+from robot_localization_suite.core.ir.localizer import IRLocalizer
+from robot_localization_suite.core.ir.settings import IRSettings
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.se2 import compose, relative
-from robot_localization_suite.nodes import ir_initializer
+from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.ros import conversions
 
 
-def test_make_localizer_from_the_registry_params_gives_the_settings_defaults() -> None:
-    localizer = ir_initializer.make_localizer(registry.localizer_params("ir_initializer"))
+def test_the_plugin_builds_the_localizer_with_the_defaults_and_checks_values() -> None:
+    plugin = registry.plugin("ir_initializer")
+    localizer = plugin.create(plugin.load_settings()[1])
     assert isinstance(localizer, IRLocalizer)
-    assert localizer.settings == IRSettings()
-    assert "ir_initializer" in registry.available_localizers()
-
-
-def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
-    names = [spec.name for spec in ir_initializer.PARAMS]
-    assert len(names) == len(set(names))
-    assert set(names) == {field.name for field in fields(IRSettings)}
-    config = yaml.safe_load((repo_root / "config" / "ir_initializer.yaml").read_text())["ir_initializer"]["ros__parameters"]
-    assert set(config) == set(names)
-    defaults = IRSettings()
-    for spec in ir_initializer.PARAMS:
-        assert spec.description
-        assert type(config[spec.name]) is type(spec.default), spec.name
-        assert config[spec.name] == getattr(defaults, spec.name), spec.name
-
-
-def test_parameter_values_are_converted_and_checked() -> None:
-    settings = ir_initializer.settings_from_params({"update_min_d": 2, "particle_count": 50, "use_idf": False, "x": 1})
+    assert localizer.settings == IRSettings()  # the packaged file repeats the defaults
+    settings = plugin.load_settings({"update_min_d": 2, "particle_count": 50, "use_idf": False, "x": 1})[1]
     assert settings.update_min_d == 2.0 and isinstance(settings.update_min_d, float)
     assert settings.particle_count == 50 and not settings.use_idf
     with pytest.raises(ValueError, match="heading_step"):
-        ir_initializer.make_localizer({"heading_step": 0.0})
+        plugin.load_settings({"heading_step": 0.0})
+    with pytest.raises(ValueError, match="step2_range_bin must be >= range_resolution"):
+        IRSettings(range_resolution=0.2, pattern_range_bin=0.2)
 
 
 def _scan_msg(scan):  # noqa: ANN001, ANN202
@@ -72,11 +57,11 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
     for name, value in overrides.items():
         args += ["-p", f"{name}:={value}"]
     rclpy.init(args=args)
-    node = LocalizerNode(ir_initializer.NODE_NAME, ir_initializer.PARAMS, ir_initializer.make_localizer)
+    node = LocalizerNode(registry.plugin("ir_initializer"))
     published = []
     try:
-        for spec in ir_initializer.PARAMS:
-            assert node.has_parameter(spec.name), spec.name
+        for param in parameters(IRSettings):
+            assert node.has_parameter(param.name), param.name
         localizer = node.localizer
         assert localizer.settings.grid_resolution == 0.1 and localizer.settings.cache_dir == str(tmp_path)
         node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]
@@ -127,11 +112,11 @@ def test_tracking_converges_on_the_simulated_office_bag(repo_root: Path, tmp_pat
     bag = repo_root / "bags" / "office_kidnap"
     if not (bag / "metadata.yaml").is_file():
         pytest.skip("bags/office_kidnap has not been recorded")
-    params = registry.localizer_params(
-        "ir_initializer",
+    plugin = registry.plugin("ir_initializer")
+    _, settings = plugin.load_settings(
         {"grid_resolution": 0.1, "angular_resolution": math.radians(2.0), "progress": False, "cache_dir": str(tmp_path)},
     )
-    adapter = LocalizerAdapter(ir_initializer.make_localizer(params), node_name="ir_initializer", log=lambda *_: None)
+    adapter = LocalizerAdapter(plugin.create(settings), node_name="ir_initializer", log=lambda *_: None)
     truth_stamps, truth_poses, outputs = [], [], []
     for item in read_bag(bag, ["/map", "/odom", "/scan", "/ground_truth"]):
         if item.topic == "/map":

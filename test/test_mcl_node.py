@@ -1,70 +1,25 @@
-"""The mcl_baseline node module: parameters -> MclSettings, config file, an in-process node fed messages."""
+"""The mcl_baseline plugin and the shared node running it, fed messages in-process."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
-from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from mcl_test_world import drive, office_map
 
 from robot_localization_suite import registry
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
-from robot_localization_suite.nodes import mcl_baseline
+from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.ros import conversions
 
-_RENAMED = {"initial_pose.x": "initial_pose_x", "initial_pose.y": "initial_pose_y", "initial_pose.yaw": "initial_pose_yaw"}
 
-
-def test_make_localizer_from_the_registry_params_gives_the_settings_defaults() -> None:
-    localizer = mcl_baseline.make_localizer(registry.localizer_params("mcl_baseline"))
+def test_the_plugin_builds_the_filter_from_the_packaged_params_file() -> None:
+    plugin = registry.plugin("mcl_baseline")
+    localizer = plugin.create(plugin.load_settings()[1])
     assert isinstance(localizer, MonteCarloLocalizer)
-    assert localizer.settings == MclSettings()
-
-
-def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
-    names = [spec.name for spec in mcl_baseline.PARAMS]
-    assert len(names) == len(set(names))
-    assert {_RENAMED.get(name, name) for name in names} == {field.name for field in fields(MclSettings)}
-    config = yaml.safe_load((repo_root / "config" / "mcl_baseline.yaml").read_text())["mcl_baseline"]["ros__parameters"]
-    assert set(config) == set(names)
-    defaults = MclSettings()
-    for spec in mcl_baseline.PARAMS:
-        assert spec.description
-        assert type(config[spec.name]) is type(spec.default), spec.name
-        assert config[spec.name] == pytest.approx(getattr(defaults, _RENAMED.get(spec.name, spec.name))), spec.name
-
-
-def test_a_nav2_amcl_params_section_carries_over() -> None:
-    # the `amcl:` section of a nav2 params file: nested initial pose, nav2 plugin names,
-    # integers where floats are declared, and parameters this node does not have
-    nav2 = yaml.safe_load(
-        """
-        alpha1: 0.2
-        alpha2: 0.2
-        base_frame_id: "base_footprint"
-        do_beamskip: false
-        laser_model_type: "likelihood_field"
-        max_particles: 2000
-        min_particles: 500
-        robot_model_type: "nav2_amcl::OmniMotionModel"
-        recovery_alpha_fast: 0.0
-        sigma_hit: 0.2
-        update_min_d: 1
-        set_initial_pose: true
-        initial_pose: {x: 1.5, y: -2.0, z: 0.0, yaw: 0.5}
-        """
-    )
-    settings = mcl_baseline.make_localizer(nav2).settings
-    assert settings.alpha1 == 0.2 and settings.max_particles == 2000 and settings.omnidirectional
-    assert settings.update_min_d == 1.0 and isinstance(settings.update_min_d, float)
-    assert (settings.initial_pose_x, settings.initial_pose_y, settings.initial_pose_yaw) == (1.5, -2.0, 0.5)
-    with pytest.raises(ValueError, match="laser_model_type"):
-        mcl_baseline.make_localizer({"laser_model_type": "likelihood_field_prob"})
+    assert localizer.settings == MclSettings()  # the packaged file repeats the defaults
 
 
 def test_the_node_handles_a_message_feed_and_its_services() -> None:
@@ -76,11 +31,12 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
     office = office_map()
     run = drive(office, steps=80, seed=2)
     rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=3000", "-p", "min_particles:=200"])
-    node = LocalizerNode(mcl_baseline.NODE_NAME, mcl_baseline.PARAMS, mcl_baseline.make_localizer)
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
     published = []
     try:
-        for spec in mcl_baseline.PARAMS:
-            assert node.has_parameter(spec.name), spec.name
+        for param in parameters(MclSettings):
+            assert node.has_parameter(param.name), param.name
+        assert node.describe_parameter("sigma_hit").floating_point_range[0].to_value == 100.0
         localizer = node.localizer
         assert localizer.settings.max_particles == 3000
         node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]

@@ -1,14 +1,13 @@
-"""The pil_localizer node module: parameters -> core settings, config file, messages through the adapter."""
+"""The pil_localizer plugin: its settings, messages through the adapter, the shared node running it."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from robot_localization_suite import registry
 from robot_localization_suite.core.grid_map import GridMap
@@ -17,11 +16,9 @@ from robot_localization_suite.core.pil.localizer import PilLocalizer, PilSetting
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
 from robot_localization_suite.core.se2 import angle_difference, compose
-from robot_localization_suite.nodes import pil_localizer
+from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter
-
-_CONVERTED = {"field_of_view_deg": "field_of_view", "ambiguity_angle_deg": "ambiguity_angle"}
 
 
 def _room() -> GridMap:
@@ -32,48 +29,32 @@ def _room() -> GridMap:
     return GridMap(data, 0.05, (0.0, 0.0))
 
 
-def test_make_localizer_builds_from_the_registry_params_with_the_settings_defaults(tmp_path: Path) -> None:
-    params = registry.localizer_params("pil_localizer", {"cache_dir": str(tmp_path)})
-    localizer = pil_localizer.make_localizer(params)
+def _pil(**overrides: object) -> PilLocalizer:
+    plugin = registry.plugin("pil_localizer")
+    return plugin.create(plugin.load_settings(overrides)[1])
+
+
+def test_the_plugin_builds_pil_with_the_settings_defaults(tmp_path: Path) -> None:
+    localizer = _pil(cache_dir=str(tmp_path))
     assert isinstance(localizer, PilLocalizer)
-    defaults = PilSettings()
-    for field in fields(PilSettings):
-        if field.name != "cache_dir":
-            assert getattr(localizer.settings, field.name) == pytest.approx(getattr(defaults, field.name)), field.name
-
-
-def test_every_parameter_reaches_the_settings_and_the_config_file_lists_them_all(repo_root: Path) -> None:
-    names = [spec.name for spec in pil_localizer.PARAMS]
-    settings_fields = {field.name for field in fields(PilSettings)}
-    assert len(names) == len(set(names))
-    for name in names:
-        assert name in settings_fields or name in _CONVERTED, name
-    assert settings_fields == {_CONVERTED.get(name, name) for name in names}
-    config = yaml.safe_load((repo_root / "config" / "pil_localizer.yaml").read_text())
-    assert set(config["pil_localizer"]["ros__parameters"]) == set(names)
-    for spec in pil_localizer.PARAMS:
-        assert spec.description
-        assert type(config["pil_localizer"]["ros__parameters"][spec.name]) is type(spec.default), spec.name
+    assert localizer.settings == replace(PilSettings(), cache_dir=str(tmp_path))
 
 
 def test_degree_parameters_are_converted_and_bad_values_refused(tmp_path: Path) -> None:
-    params = registry.localizer_params(
-        "pil_localizer", {"field_of_view_deg": 180, "ambiguity_angle_deg": 30.0, "window_size": 0, "cache_dir": str(tmp_path)}
-    )
-    localizer = pil_localizer.make_localizer(params)
+    localizer = _pil(field_of_view_deg=180, ambiguity_angle_deg=30.0, window_size=0, cache_dir=str(tmp_path))
     assert localizer.settings.field_of_view == pytest.approx(math.pi)
     assert localizer.settings.ambiguity_angle == pytest.approx(math.radians(30.0))
     assert localizer.layout.angle_count == 114 * 4
     with pytest.raises(ValueError, match="beam_mapping"):
-        pil_localizer.make_localizer(registry.localizer_params("pil_localizer", {"beam_mapping": "average"}))
+        _pil(beam_mapping="average")
 
 
 def test_messages_through_the_adapter_give_the_base_pose_and_bad_scans_are_skipped(tmp_path: Path) -> None:
     room = _room()
-    params = registry.localizer_params("pil_localizer", {"cache_dir": str(tmp_path), "show_progress": False, "max_range": 6.0})
+    localizer = _pil(cache_dir=str(tmp_path), show_progress=False, max_range=6.0)
     mount = LaserMount(0.2, 0.0, 0.0)
     logs: list[tuple[str, str]] = []
-    adapter = LocalizerAdapter(pil_localizer.make_localizer(params), node_name="pil_localizer", log=lambda *a: logs.append(a), mount=mount)
+    adapter = LocalizerAdapter(localizer, node_name="pil_localizer", log=lambda *a: logs.append(a), mount=mount)
     assert adapter.on_map_msg(conversions.grid_map_to_msg(room, 0.0))
 
     base = np.array([1.8, 1.4, 0.7])
@@ -116,13 +97,14 @@ def test_the_node_declares_every_parameter_and_builds_pil(tmp_path: Path) -> Non
             "-p", "show_progress:=false"]
     rclpy.init(args=args)
     try:
-        node = LocalizerNode(pil_localizer.NODE_NAME, pil_localizer.PARAMS, pil_localizer.make_localizer)
+        node = LocalizerNode(registry.plugin("pil_localizer"))
         try:
             assert isinstance(node.localizer, PilLocalizer)
             assert node.localizer.settings.field_of_view == pytest.approx(math.radians(240.0))
             assert node.localizer.settings.cache_dir == str(tmp_path)
-            for spec in pil_localizer.PARAMS:
-                assert node.has_parameter(spec.name), spec.name
+            for param in parameters(PilSettings):
+                assert node.has_parameter(param.name), param.name
+            assert node.get_parameter("field_of_view_deg").value == 240.0
         finally:
             node.destroy_node()
     finally:

@@ -199,7 +199,7 @@ def test_node_validation_refuses_what_ros_would_ignore(tmp_path: Path) -> None:
     with pytest.raises(RunError, match="params_file .*missing.yaml' does not exist"):
         NodeSpec("scan_sim", "sim", params_file=str(tmp_path / "missing.yaml")).validate()
     # scan_sim.yaml is keyed "scan_sim:": a node renamed "sim_a" would silently get none of it.
-    with pytest.raises(RunError, match=r"none for 'sim_a' or '/\*\*'"):
+    with pytest.raises(RunError, match=r"no section for node 'sim_a' \(nor '/\*\*'\): ROS would ignore it"):
         NodeSpec("scan_sim", "sim_a", params_file=str(ROOT / "config" / "scan_sim.yaml")).validate()
     NodeSpec("scan_sim", "scan_sim", params_file=str(ROOT / "config" / "scan_sim.yaml")).validate()
 

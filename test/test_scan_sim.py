@@ -22,6 +22,7 @@ import yaml
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.se2 import quaternion_to_yaw
 from robot_localization_suite.core.sim.scenario import load_scenario
+from robot_localization_suite.core.sim.settings import ScanSimSettings, build_scenario
 from robot_localization_suite.core.sim.simulator import Simulator
 from robot_localization_suite.nodes import scan_sim
 from robot_localization_suite.ros.bag import read_bag
@@ -281,37 +282,22 @@ def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: p
     assert scan_sim.main(["scan_sim", "--record", str(tmp_path / "b"), "--ros-args", "-p", f"scenario:={path}"]) == 2
     assert "start pose [0.020, 1.000, 0.000] lies in an obstacle" in capsys.readouterr().err
     assert scan_sim.main(["scan_sim", "--record", str(tmp_path / "c"), "--ros-args", "-p", "speed:=fast"]) == 2
-    assert "parameter 'speed' must be of type float, got 'fast'" in capsys.readouterr().err
+    assert "parameter speed must be a number, got 'fast'" in capsys.readouterr().err
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
-def test_parameters_from_args_reads_params_files_and_overrides(tmp_path: Path) -> None:
-    params = scan_sim.parameters_from_args(
-        [
-            "x",
-            "--ros-args",
-            "--params-file",
-            str(ROOT / "config" / "scan_sim.yaml"),
-            "-p",
-            "beams:=90",
-            "-p",
-            "speed:=2",
-        ]
+def test_settings_from_args_read_params_files_and_overrides(tmp_path: Path) -> None:
+    settings = scan_sim.settings_from_args(
+        ["x", "--ros-args", "--params-file", str(ROOT / "config" / "scan_sim.yaml"), "-p", "beams:=90", "-p", "speed:=2"]
     )
-    assert params["beams"] == 90 and params["speed"] == 2.0 and params["exit_at_end"] is True
-    with pytest.raises(Exception, match="unknown parameter 'beam'"):
-        scan_sim.parameters_from_args(["x", "--ros-args", "-p", "beam:=90"])
-    with pytest.raises(Exception, match=r"'fov_deg' must be within \[-1.0, 360.0\], got 720.0"):
-        scan_sim.parameters_from_args(["x", "--ros-args", "-p", "fov_deg:=720.0"])
+    assert settings.beams == 90 and settings.speed == 2.0 and settings.exit_at_end is True
+    with pytest.raises(Exception, match="unknown parameter\\(s\\) 'beam'"):
+        scan_sim.settings_from_args(["x", "--ros-args", "-p", "beam:=90"])
+    with pytest.raises(Exception, match=r"parameter fov_deg must be in \[-1..360\] deg, got 720.0"):
+        scan_sim.settings_from_args(["x", "--ros-args", "-p", "fov_deg:=720.0"])
     path = write_world(tmp_path, camera=False)
-    scenario = scan_sim.build_scenario(
-        {
-            **{s.name: s.default for s in scan_sim.PARAMS},
-            "scenario": str(path),
-            "beams": 45,
-            "range_noise_model": "uniform",
-        }
-    )
+    settings = ScanSimSettings(scenario=str(path), beams=45, range_noise_model="uniform")
+    scenario = build_scenario(settings, path)
     assert scenario.laser.beams == 45 and scenario.laser.range_noise_model == "uniform"
     assert scenario.laser.fov_deg == 270.0  # not overridden: the scenario's
 
@@ -321,7 +307,8 @@ def test_help_lists_parameters_and_record(capsys: pytest.CaptureFixture[str]) ->
         scan_sim.main(["scan_sim", "--help"])
     assert exit_info.value.code == 0
     text = capsys.readouterr().out
-    assert "--record DIR" in text and "scenario (default '')" in text and "cmd_vel" in text
+    assert "--record DIR" in text and "scenario = ''" in text and "cmd_vel" in text
+    assert "fov_deg = -1.0 [deg] [-1..360]: laser field of view" in text
 
 
 # -- the committed bags -----------------------------------------------------------------------------

@@ -10,6 +10,7 @@ __all__ = [
     "ScanError",
     "CacheError",
     "ImageError",
+    "SettingsError",
 ]
 
 
@@ -39,3 +40,7 @@ class CacheError(LocalizationSuiteError):
 
 class ImageError(LocalizationSuiteError):
     """A camera image cannot be used (wrong shape, non-finite values)."""
+
+
+class SettingsError(LocalizationSuiteError, ValueError):
+    """A setting or ROS parameter value is of the wrong type or out of its range."""

@@ -2,7 +2,7 @@
 
 Starts ``scan_sim`` on a scenario (default ``config/scenarios/office_kidnap.yaml``,
 real time or ``--speed`` times faster) and each available localizer node
-(``registry.available_localizers()``) with its ``config/<name>.yaml`` and the
+(``registry.PLUGINS``) with its ``config/<name>.yaml`` and the
 scenario's map (``-p map_yaml:=...``), all through :mod:`.runner` with DDS on
 loopback. A monitor node in this process subscribes to ``/ground_truth``, each
 ``/<localizer>/pose`` and ``/diagnostics``, and prints once a second each
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import metrics
-from ..registry import available_localizers, config_dir
+from ..registry import PLUGINS, config_dir
 from .dds import loopback_environment
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
@@ -313,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if not args.speed > 0.0:
         parser.error(f"--speed must be > 0, got {args.speed!r}")
-    available = available_localizers()
+    available = list(PLUGINS)
     if args.localizers is None:
         localizers = available
     elif args.localizers.strip().lower() in ("", "none"):
@@ -337,9 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     end_time = scenario.end_time
     if scenario.camera is None and args.localizers is None:
         # Camera localizers would wait for images this scenario never publishes.
-        from ..registry import load_localizer_module
-
-        blind = [name for name in localizers if getattr(load_localizer_module(name), "USES_CAMERA", False)]
+        blind = [name for name in localizers if PLUGINS[name].uses_camera]
         localizers = [name for name in localizers if name not in blind]
         if blind:
             print(f"[demo] left out (the scenario has no camera): {', '.join(blind)}", flush=True)

@@ -39,7 +39,8 @@ from typing import Any
 
 import yaml
 
-from ..core.errors import LocalizationSuiteError
+from ..core.errors import LocalizationSuiteError, SettingsError
+from ..core.settings import read_params_file
 from .dds import loopback_environment
 
 __all__ = [
@@ -148,17 +149,9 @@ class NodeSpec:
     def _check_params_file_applies(self, path: Path) -> None:
         """A params file keyed by another node name would be silently ignored by ROS: refuse it."""
         try:
-            content = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise RunError(f"node {self.name!r}: params_file {str(path)!r} is not valid YAML: {exc}") from exc
-        if not isinstance(content, dict):
-            raise RunError(f"node {self.name!r}: params_file {str(path)!r} must hold a mapping of node names")
-        keys = {str(key).lstrip("/") for key in content}
-        if not keys & {self.name, "**", "*"}:
-            raise RunError(
-                f"node {self.name!r}: params_file {str(path)!r} has sections {sorted(content)!r} "
-                f"but none for {self.name!r} or '/**': ROS would ignore it"
-            )
+            read_params_file(path, self.name)
+        except SettingsError as exc:
+            raise RunError(f"node {self.name!r}: {exc}") from exc
 
     def command(self, python: str = sys.executable) -> list[str]:
         """The command line that starts this node."""

@@ -1,14 +1,14 @@
-"""The node shape all localizers share: subscriptions, publishers, services, map loading.
+"""The one node shape of every localizer: parameters from its plugin's settings, topics, services, map loading.
 
-A concrete node only lists its parameters and turns their values into a core
-localizer (``make_localizer``); everything else (the ROS interface of
-DESIGN.md) lives here once.
+A node module hands its :class:`~robot_localization_suite.registry.LocalizerPlugin` (and any
+extra outputs) to :func:`run_localizer`; everything of DESIGN.md's ROS interface lives here once,
+and the message handling lives in :class:`~robot_localization_suite.ros.adapter.LocalizerAdapter`,
+which the benchmark runs too.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
@@ -20,76 +20,69 @@ from std_srvs.srv import Empty
 
 from ..core.errors import MapError
 from ..core.grid_map import load_map_yaml
-from ..core.localizer import Estimate
-from ..core.scan import LaserMount
+from ..core.settings import from_params
+from ..registry import LocalizerPlugin, NodeSettings
 from ..ros.adapter import AdapterOutput, LocalizerAdapter
+from ..ros.extras import Extra
+from ..ros.params import declare_settings
 from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS
-from .common import LASER_MOUNT_PARAMS, ParamSpec, declare_parameters, guarded
+from .common import guarded, help_parser, run_node
 
-__all__ = ["LocalizerNode", "COMMON_PARAMS", "LOCALIZER_TOPICS", "CAMERA_LOCALIZER_TOPICS"]
-
-COMMON_PARAMS = (
-    ParamSpec("map_yaml", "", "nav2 map_server YAML to load at start; empty: wait for the map topic"),
-    *LASER_MOUNT_PARAMS,
-    ParamSpec("max_published_candidates", 2000, "cap on the poses in ~/candidates", 0, 1_000_000),
-)
-
-LOCALIZER_TOPICS = """  in:  scan (sensor_msgs/LaserScan), odom (nav_msgs/Odometry), map (nav_msgs/OccupancyGrid),
-       initialpose (geometry_msgs/PoseWithCovarianceStamped)
-  out: ~/pose (geometry_msgs/PoseWithCovarianceStamped), ~/candidates (geometry_msgs/PoseArray),
-       /diagnostics (diagnostic_msgs/DiagnosticArray)
-  services: ~/reinitialize_global_localization, ~/request_nomotion_update (std_srvs/Empty)"""
-
-CAMERA_LOCALIZER_TOPICS = """  in:  camera/image_raw (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8), odom (nav_msgs/Odometry),
-       initialpose (geometry_msgs/PoseWithCovarianceStamped)
-  out: ~/pose (geometry_msgs/PoseWithCovarianceStamped), ~/candidates (geometry_msgs/PoseArray),
-       /diagnostics (diagnostic_msgs/DiagnosticArray), and the method's extra topics
-  services: ~/reinitialize_global_localization, ~/request_nomotion_update (std_srvs/Empty)"""
+__all__ = ["LocalizerNode", "run_localizer", "topics_text"]
 
 # Odometry must not be lost, yet must accept best-effort publishers too.
 _ODOM_QOS = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 
+def topics_text(plugin: LocalizerPlugin) -> str:
+    """The topics and services of a localizer node, for ``--help``."""
+    sensor = ("camera/image_raw (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8)" if plugin.uses_camera
+              else "scan (sensor_msgs/LaserScan), map (nav_msgs/OccupancyGrid)")
+    lines = [
+        f"  in:  {sensor}, odom (nav_msgs/Odometry), initialpose (geometry_msgs/PoseWithCovarianceStamped)",
+        "  out: ~/pose (geometry_msgs/PoseWithCovarianceStamped), ~/candidates (geometry_msgs/PoseArray),",
+        "       /diagnostics (diagnostic_msgs/DiagnosticArray)",
+        *(f"       {output}" for output in plugin.outputs),
+        "  services: ~/reinitialize_global_localization, ~/request_nomotion_update (std_srvs/Empty)",
+    ]
+    return "\n".join(lines)
+
+
 class LocalizerNode(Node):
-    """Base class of every localizer node.
+    """A localizer node running one plugin.
 
     Args:
-        name: default node name.
-        specs: the method's own parameters (the common ones are added).
-        make_localizer: builds the core localizer from the parameter values.
-        extras: topic suffix -> message type of method-specific outputs.
-        extras_builder: turns an estimate into those messages.
-        uses_camera: subscribe to ``camera/image_raw`` instead of ``scan``.
+        plugin: what the node runs (its settings declare the node's parameters).
+        extras: topic suffix -> :class:`~robot_localization_suite.ros.extras.Extra` of method-specific outputs.
+        node_name: default node name (``-r __node:=...`` still renames it); default: the plugin's name.
     """
 
     def __init__(
-        self,
-        name: str,
-        specs: Sequence[ParamSpec],
-        make_localizer: Callable[[dict[str, Any]], Any],
-        *,
-        extras: dict[str, type] | None = None,
-        extras_builder: Callable[[Estimate], dict[str, Any]] | None = None,
-        uses_camera: bool = False,
+        self, plugin: LocalizerPlugin, *, extras: Mapping[str, Extra] | None = None, node_name: str | None = None
     ) -> None:
-        super().__init__(name)
-        self.params = declare_parameters(self, [*COMMON_PARAMS, *specs])
-        mount = LaserMount(self.params["laser_x"], self.params["laser_y"], self.params["laser_yaw"])
-        self.localizer = make_localizer(self.params)
+        super().__init__(node_name or plugin.name)
+        self.plugin = plugin
+        values = declare_settings(self, NodeSettings, plugin.settings)
+        self.node_settings = from_params(NodeSettings, values)
+        self.settings = from_params(plugin.settings, values)
+        self.localizer = plugin.create(self.settings)
+        extras = dict(extras or {})
         self.adapter = LocalizerAdapter(
             self.localizer,
             node_name=self.get_name(),
             log=self._log,
-            mount=mount,
-            extras_builder=extras_builder,
-            max_candidates=self.params["max_published_candidates"],
+            mount=self.node_settings.mount,
+            extras_builder=(lambda estimate: {key: extra.build(estimate) for key, extra in extras.items()})
+            if extras else None,
+            max_candidates=self.node_settings.max_published_candidates,
         )
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "~/pose", RELIABLE_QOS)
         self.candidates_pub = self.create_publisher(PoseArray, "~/candidates", RELIABLE_QOS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
-        self.extra_pubs = {key: self.create_publisher(kind, f"~/{key}", RELIABLE_QOS) for key, kind in (extras or {}).items()}
+        self.extra_pubs = {key: self.create_publisher(extra.kind, f"~/{key}", RELIABLE_QOS)
+                           for key, extra in extras.items()}
 
-        if uses_camera:
+        if plugin.uses_camera:
             self.create_subscription(Image, "camera/image_raw", guarded(self, self._on_image, "image update"), SENSOR_QOS)
         else:
             self.create_subscription(LaserScan, "scan", guarded(self, self._on_scan, "scan update"), SENSOR_QOS)
@@ -103,8 +96,8 @@ class LocalizerNode(Node):
         )
         self.create_service(Empty, "~/reinitialize_global_localization", self._on_reinitialize)
         self.create_service(Empty, "~/request_nomotion_update", self._on_nomotion)
-        if self.params["map_yaml"] and not uses_camera:
-            self._load_map(self.params["map_yaml"])
+        if self.node_settings.map_yaml and not plugin.uses_camera:
+            self._load_map(self.node_settings.map_yaml)
         self.get_logger().info(f"{self.get_name()} ready")
 
     def _log(self, level: str, text: str) -> None:
@@ -151,28 +144,9 @@ class LocalizerNode(Node):
                 self.extra_pubs[key].publish(msg)
 
 
-def localizer_node_main(module: Any, argv: Sequence[str] | None = None) -> int:
-    """``main()`` of a localizer node module.
-
-    The module defines ``NODE_NAME``, ``DESCRIPTION``, ``PARAMS`` (its ParamSpecs),
-    ``make_localizer(params) -> core localizer`` and optionally ``EXTRAS``
-    (topic suffix -> message type), ``build_extras(estimate)`` and ``USES_CAMERA``.
-    The same module attributes let ``rls_bench`` build the localizer without a node.
-    """
-    from .common import run_node
-
-    return run_node(
-        module.NODE_NAME,
-        module.DESCRIPTION,
-        [*COMMON_PARAMS, *module.PARAMS],
-        CAMERA_LOCALIZER_TOPICS if getattr(module, "USES_CAMERA", False) else LOCALIZER_TOPICS,
-        lambda _options: LocalizerNode(
-            module.NODE_NAME,
-            module.PARAMS,
-            module.make_localizer,
-            extras=getattr(module, "EXTRAS", None),
-            extras_builder=getattr(module, "build_extras", None),
-            uses_camera=getattr(module, "USES_CAMERA", False),
-        ),
-        argv,
-    )
+def run_localizer(
+    plugin: LocalizerPlugin, argv: Sequence[str] | None = None, *, extras: Mapping[str, Extra] | None = None
+) -> int:
+    """``main()`` of a localizer node module: ``--help`` from the plugin's settings, then the node."""
+    parser = help_parser(plugin.name, plugin.description, (NodeSettings, plugin.settings), topics_text(plugin))
+    return run_node(parser, lambda _options: LocalizerNode(plugin, extras=extras), argv)

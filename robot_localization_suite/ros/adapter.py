@@ -128,6 +128,9 @@ class LocalizerAdapter:
         self._info = log
         self.mount = mount or LaserMount()
         self._mount_inv = inverse(self.mount.pose)
+        if hasattr(localizer, "set_laser_mount"):
+            # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
+            localizer.set_laser_mount(self.mount)
         self._extras_builder = extras_builder
         self._last_odom_stamp = -np.inf
         self._last_scan_stamp = -np.inf

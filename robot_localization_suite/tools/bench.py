@@ -140,22 +140,20 @@ class LocalizerSpec:
         return None
 
 
-def _registry_factory(name: str, params: dict[str, Any]) -> Any:
-    return registry.load_localizer_module(name).make_localizer(params)
+def _plugin_factory(name: str, settings: Any) -> Any:
+    return registry.plugin(name).create(settings)
 
 
 def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LocalizerSpec:
-    """The spec of a packaged localizer: ``make_localizer(localizer_params(name, overrides))``."""
-    module = registry.load_localizer_module(name)
-    params = registry.localizer_params(name, dict(overrides or {}))
-    mount = LaserMount(float(params.get("laser_x", 0.0)), float(params.get("laser_y", 0.0)),
-                       float(params.get("laser_yaw", 0.0)))
+    """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``."""
+    plugin = registry.plugin(name)
+    node_settings, settings = plugin.load_settings(overrides)
     return LocalizerSpec(
         name=name,
-        factory=functools.partial(_registry_factory, name, params),
-        uses_camera=bool(getattr(module, "USES_CAMERA", False)),
-        mount=mount,
-        skip=dict(getattr(module, "BENCH_SKIP", {}) or {}),
+        factory=functools.partial(_plugin_factory, name, settings),
+        uses_camera=plugin.uses_camera,
+        mount=node_settings.mount,
+        skip=dict(plugin.bench_skip),
     )
 
 
@@ -1023,7 +1021,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             bags += [b for b in discover_bags(args.bags_dir or default_bags_dir()) if b not in bags]
         if not bags:
             raise ValueError("no bag given (pass BAG... or --all)")
-        available = registry.available_localizers()
+        available = list(registry.PLUGINS)
         names = _split_names(args.localizers) or available
         unknown = [n for n in names if n not in available]
         if unknown:

@@ -181,13 +181,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     options = parser.parse_args(argv)
 
-    from ..registry import config_dir, localizer_params
+    from ..registry import config_dir, plugin
 
-    params = localizer_params("ir_initializer", _parse_overrides(options.set))
-    from ..nodes.ir_initializer import settings_from_params
-
-    settings = settings_from_params(params)
-    mount = LaserMount(params["laser_x"], params["laser_y"], params["laser_yaw"])
+    node_settings, settings = plugin("ir_initializer").load_settings(_parse_overrides(options.set))
+    mount = node_settings.mount
     results = {}
     for bag in options.bags:
         scans, truths, bag_map = load_bag_scans(bag)

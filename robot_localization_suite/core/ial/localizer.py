@@ -157,7 +157,7 @@ and a depth-first paving in one thread is deterministic.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -181,6 +181,7 @@ from ..motion import _MIN_TRANSLATION_FOR_HEADING, odometry_delta
 from ..scan import LaserMount, Scan
 from ..se2 import angle_difference, compose, inverse, wrap_angle
 from .kernels import merge_boxes, pave, summed_area_table
+from .settings import IALSettings
 
 __all__ = [
     "IALSettings",
@@ -197,119 +198,6 @@ __all__ = [
 
 # Relative float32 rounding of a LaserScan range: half an ulp is 2^-24, one ulp 2^-23.
 _FLOAT32_RELATIVE = 2.0**-23
-
-
-@dataclass(frozen=True)
-class IALSettings:
-    """Settings of :class:`IntervalLocalizer`, with units and the source of each default.
-
-    Attributes:
-        range_error: ``eps_y`` [m], bound of a reading's error (paper 4.1: +-5 cm, URG-30LX).
-        max_outliers: ``n_o``, readings allowed to break the bound (paper 5.2: 5 of 36).
-        max_beams: readings used per scan, evenly among the valid ones (paper 5.2: 36).
-        min_box_width_xy: ``xi`` for x and y [m]: bisect while wider (our choice, see module doc).
-        min_box_width_theta: ``xi`` for theta [rad].
-        map_margin: dilation of the obstacle set [m] (0 exact for simulated maps; about one
-            cell for SLAM maps, DESIGN.md).
-        free_space_samples: points checked before each beam's end, 0.5, 1.5, 3.5, ... cells back
-            (doubling), that must not lie in certain obstacles (our addition; 0 turns it off).
-        laser_in_free_cells: the laser stands in a cell the map marks free (within ``map_margin``);
-            False: in any cell not marked occupied (for maps whose free space is not marked).
-        odom_relative_translation, odom_absolute_translation: bound of each step's
-            translation [-, m] (paper 5.2: odometry error 10 % of the motion).
-        odom_relative_rotation, odom_absolute_rotation: bound of each step's rotations [-, rad].
-        contraction_passes: forward-backward passes per box at most (a fixpoint is usually
-            reached in 2-3).
-        min_contraction_gain: stop the passes when no width shrank by more than this fraction.
-        max_boxes: bisection stops past this many boxes in one iteration (coarser, still sound).
-        max_contractions: bisection stops past this many contractions in one iteration.
-        merge_width_xy, merge_width_theta: largest hull boxes are merged into before
-            prediction [m, rad] (the tracking box of the paper's 5.2: 0.5 m x 0.5 m x 10 deg).
-        localized_width_xy, localized_width_theta: hull below which the status is LOCALIZED
-            rather than AMBIGUOUS [m, rad].
-        initial_pose_sigmas: half-width of the initial box in standard deviations.
-        initial_min_half_width_xy, initial_min_half_width_theta: floor of those half-widths [m, rad].
-        update_min_d, update_min_a: motion needed before a new update [m, rad] (nav2 names;
-            0 = update on every scan, as the paper does).
-        mount: laser pose in the base frame, used only to express ``details["boxes"]``
-            in the base frame.
-    """
-
-    range_error: float = 0.05
-    max_outliers: int = 5
-    max_beams: int = 36
-    min_box_width_xy: float = 0.05
-    min_box_width_theta: float = math.radians(1.0)
-    map_margin: float = 0.0
-    free_space_samples: int = 9
-    laser_in_free_cells: bool = True
-    odom_relative_translation: float = 0.1
-    odom_absolute_translation: float = 0.01
-    odom_relative_rotation: float = 0.1
-    odom_absolute_rotation: float = math.radians(1.0)
-    contraction_passes: int = 3
-    min_contraction_gain: float = 0.05
-    max_boxes: int = 20_000
-    max_contractions: int = 2_000_000
-    merge_width_xy: float = 0.5
-    merge_width_theta: float = math.radians(10.0)
-    localized_width_xy: float = 0.5
-    localized_width_theta: float = math.radians(20.0)
-    initial_pose_sigmas: float = 3.0
-    initial_min_half_width_xy: float = 0.05
-    initial_min_half_width_theta: float = math.radians(3.0)
-    update_min_d: float = 0.0
-    update_min_a: float = 0.0
-    mount: LaserMount = field(default_factory=LaserMount)
-
-    def __post_init__(self) -> None:
-        non_negative = (
-            "range_error",
-            "map_margin",
-            "odom_relative_translation",
-            "odom_absolute_translation",
-            "odom_relative_rotation",
-            "odom_absolute_rotation",
-            "min_contraction_gain",
-            "update_min_d",
-            "update_min_a",
-        )
-        positive = (
-            "min_box_width_xy",
-            "min_box_width_theta",
-            "merge_width_xy",
-            "merge_width_theta",
-            "localized_width_xy",
-            "localized_width_theta",
-            "initial_pose_sigmas",
-            "initial_min_half_width_xy",
-            "initial_min_half_width_theta",
-        )
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"IAL setting {name} must be finite and >= 0, got {value!r}")
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"IAL setting {name} must be finite and > 0, got {value!r}")
-        for name, minimum in (("max_outliers", 0), ("max_beams", 1), ("free_space_samples", 0), ("contraction_passes", 1),
-                              ("max_boxes", 1), ("max_contractions", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-                raise ValueError(f"IAL setting {name} must be an integer >= {minimum}, got {value!r}")
-        if not isinstance(self.laser_in_free_cells, bool):
-            raise ValueError(f"IAL setting laser_in_free_cells must be true or false, got {self.laser_in_free_cells!r}")
-        if self.max_outliers >= self.max_beams:
-            raise ValueError(
-                f"IAL setting max_outliers ({self.max_outliers!r}) must be below max_beams ({self.max_beams!r})"
-            )
-        if self.min_contraction_gain >= 1.0:
-            raise ValueError(f"IAL setting min_contraction_gain must be < 1, got {self.min_contraction_gain!r}")
-        if self.min_box_width_theta >= TWO_PI:
-            raise ValueError(f"IAL setting min_box_width_theta must be < 2 pi, got {self.min_box_width_theta!r}")
-        if self.merge_width_theta >= math.pi:
-            raise ValueError(f"IAL setting merge_width_theta must be < pi, got {self.merge_width_theta!r}")
 
 
 class ObstacleGrid:
@@ -482,6 +370,7 @@ class IntervalLocalizer:
 
     def __init__(self, settings: IALSettings | None = None, grid_map: GridMap | None = None) -> None:
         self.settings = settings or IALSettings()
+        self.mount = LaserMount()
         self.obstacles: ObstacleGrid | None = None
         # None: localize globally (whole map) at the next scan.
         self.boxes: NDArray[np.float64] | None = None
@@ -494,6 +383,10 @@ class IntervalLocalizer:
             self.set_map(grid_map)
 
     # -- Localizer protocol -----------------------------------------------------------
+    def set_laser_mount(self, mount: LaserMount) -> None:
+        """The laser's pose on the base: the odometry bounds describe the base's motion (paper 5.2)."""
+        self.mount = mount
+
     def set_map(self, grid_map: GridMap) -> None:
         self.obstacles = ObstacleGrid(
             grid_map, margin=self.settings.map_margin, laser_in_free_cells=self.settings.laser_in_free_cells
@@ -504,8 +397,8 @@ class IntervalLocalizer:
         pose = np.asarray(odom_pose, dtype=np.float64)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             return
-        if self.settings.mount.pose.any():
-            pose = compose(pose, inverse(self.settings.mount.pose))  # the bounds describe the base's motion
+        if self.mount.pose.any():
+            pose = compose(pose, inverse(self.mount.pose))  # the bounds describe the base's motion
         if self._odom_previous is not None:
             self._odom_steps.append((self._odom_previous, pose))
             delta = odometry_delta(self._odom_previous, pose)
@@ -617,7 +510,7 @@ class IntervalLocalizer:
         the base odometry (which the bounds describe), and moved back, outward.
         """
         s = self.settings
-        mount = s.mount.pose
+        mount = self.mount.pose
         boxes = compose_boxes(boxes, inverse(mount)) if steps else np.array(boxes, dtype=np.float64, copy=True)
         for previous, current in steps:
             rot1, trans, rot2, direction_known = odometry_step_bounds(
@@ -718,7 +611,7 @@ class IntervalLocalizer:
                        hull_width_theta=float(widths[2]))
         volume = np.prod(boxes[:, 1::2] - boxes[:, 0::2], axis=1)
         order = np.lexsort((volume, -consistent))
-        details["boxes"] = boxes_to_base(boxes[order], s.mount).reshape(-1, 3, 2)
+        details["boxes"] = boxes_to_base(boxes[order], self.mount).reshape(-1, 3, 2)
         centres = 0.5 * (boxes[order, 0::2] + boxes[order, 1::2])
         centres[:, 2] = wrap_angle(centres[:, 2])
         weights = consistent[order] / max(int(details.get("valid_beams", 1)), 1)

@@ -96,6 +96,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MapError
 from ..se2 import wrap_angle
+from .settings import NCC_BACKENDS, ImaSettings
 
 __all__ = [
     "FLAT_STD",
@@ -126,59 +127,6 @@ __all__ = [
 
 # Below this standard deviation [grey levels] a template or window is flat: NCC 0 (0.5 after A.4).
 FLAT_STD = 1e-3
-NCC_BACKENDS = ("gemm", "opencv")
-
-
-@dataclass(frozen=True)
-class ImaSettings:
-    """Parameters of IMA place recognition (thesis 4.1.1 ``TopoMap`` parameters).
-
-    Attributes:
-        width, height: working scale of every image [px]; 72 x 58 as in section 5.2.
-        slots: number of slots ``Ns``; 8 as in section 5.2 (15 for panoramas, 5.1.3).
-        clahe: CLAHE filtering (2.2.2); on in section 5.2.
-        clahe_clip_limit: CLAHE contrast limit (OpenCV's usual 2.0).
-        clahe_tiles: CLAHE tiles across the working image width and height.
-        zoom: the zoom-in factor ``rho_in`` (2.4); 1.1 in section 5.2; 1 turns zoom off.
-        ncc_backend: ``gemm`` (batched, exact) or ``opencv`` (``cv2.matchTemplate``).
-        cylindrical: warp pinhole images to equal angle per column first (see the module notes).
-    """
-
-    width: int = 72
-    height: int = 58
-    slots: int = 8
-    clahe: bool = True
-    clahe_clip_limit: float = 2.0
-    clahe_tiles: int = 4
-    zoom: float = 1.1
-    ncc_backend: str = "gemm"
-    cylindrical: bool = True
-
-    def __post_init__(self) -> None:
-        if int(self.width) != self.width or not 8 <= self.width <= 2048:
-            raise ValueError(f"IMA width must be an integer within [8, 2048] px, got {self.width!r}")
-        if int(self.height) != self.height or not 4 <= self.height <= 2048:
-            raise ValueError(f"IMA height must be an integer within [4, 2048] px, got {self.height!r}")
-        if int(self.slots) != self.slots or not 1 <= self.slots <= self.width // 2:
-            raise ValueError(f"slots must be an integer within [1, width/2 = {self.width // 2}], got {self.slots!r}")
-        if not 0.0 < self.clahe_clip_limit <= 100.0:
-            raise ValueError(f"clahe_clip_limit must be within (0, 100], got {self.clahe_clip_limit!r}")
-        if int(self.clahe_tiles) != self.clahe_tiles or not 1 <= self.clahe_tiles <= 16:
-            raise ValueError(f"clahe_tiles must be an integer within [1, 16], got {self.clahe_tiles!r}")
-        if not 1.0 <= self.zoom <= 2.0:
-            raise ValueError(f"zoom (rho_in) must be within [1, 2], got {self.zoom!r}")
-        if self.ncc_backend not in NCC_BACKENDS:
-            raise ValueError(f"ncc_backend must be one of {NCC_BACKENDS}, got {self.ncc_backend!r}")
-
-    @property
-    def slot_width(self) -> int:
-        return self.width // self.slots
-
-    @property
-    def used_columns(self) -> tuple[int, int]:
-        """First column and count of the image columns the slots cover."""
-        used = self.slot_width * self.slots
-        return (self.width - used) // 2, used
 
 
 @dataclass(frozen=True)

@@ -101,7 +101,7 @@ Choices where the thesis is silent (written down as the house rules ask):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -109,63 +109,12 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import ImageError
 from ..localizer import Estimate, LocalizerStatus
 from ..se2 import angle_difference, compose, relative, wrap_angle
-from .matching import ImaSettings, PanoramaBank, PlaceMatch, TopologicalMap, to_grey
+from .matching import PanoramaBank, PlaceMatch, TopologicalMap, to_grey
+from .settings import ODOMETRY_RESETS, ImaTrackerSettings
 
-ODOMETRY_RESETS = ("winner", "place", "zoom")
 PLAIN_COMPARISON = 0  # PlaceMatch.comparison of image -> panorama without zoom
 
 __all__ = ["ODOMETRY_RESETS", "ImaTrackerSettings", "Hypotheses", "ImaTopoLocalizer", "ImageError", "activity_update"]
-
-
-@dataclass(frozen=True)
-class ImaTrackerSettings:
-    """Parameters of the tracking (thesis 4.1.1 and section 5.2).
-
-    Attributes:
-        ima: place recognition parameters (scale 72 x 58, 8 slots, CLAHE, zoom 1.1).
-        match_threshold: ``eps_M``, least ``MATCH`` of a destination; 0.5 (5.2).
-        heading_threshold: ``eps_phi >= eps_M``, least ``MATCH`` of ``d*`` to correct the heading; 0.6 (5.2).
-        min_translation: odometry translation that triggers an update [m]; 0.3 (5.2).
-        min_rotation: odometry rotation that triggers an update [rad]; 10 degrees (5.2).
-        min_sigma_l: floor of ``dl_max`` [m] (see the module notes).
-        min_sigma_phi: floor of ``dphi_max`` [rad].
-        heading_sigma: heading standard deviation reported after a correction [rad]; 10 degrees (5.1.4).
-        odometry_reset: when the odometry guess ``d0`` is re-anchored at the winner's node:
-            ``"winner"`` every update (Code 3.1 exactly), ``"place"`` only on a new place recognised
-            by vision, ``"zoom"`` also on the same place matched without zoom (default; after the
-            thesis' own proposal in 5.2.3 / 6.1, see the module notes).
-    """
-
-    ima: ImaSettings = field(default_factory=ImaSettings)
-    match_threshold: float = 0.5
-    heading_threshold: float = 0.6
-    min_translation: float = 0.3
-    min_rotation: float = math.radians(10.0)
-    min_sigma_l: float = 0.01
-    min_sigma_phi: float = math.radians(1.0)
-    heading_sigma: float = math.radians(10.0)
-    odometry_reset: str = "zoom"
-
-    def __post_init__(self) -> None:
-        if self.odometry_reset not in ODOMETRY_RESETS:
-            raise ValueError(f"odometry_reset must be one of {ODOMETRY_RESETS}, got {self.odometry_reset!r}")
-        if not 0.0 <= self.match_threshold < 1.0:
-            raise ValueError(f"match_threshold (eps_M) must be within [0, 1), got {self.match_threshold!r}")
-        if not self.match_threshold <= self.heading_threshold <= 1.0:
-            raise ValueError(
-                f"heading_threshold (eps_phi) must be within [eps_M={self.match_threshold!r}, 1], "
-                f"got {self.heading_threshold!r}"
-            )
-        if not 0.0 <= self.min_translation < 100.0:
-            raise ValueError(f"min_translation must be within [0, 100) m, got {self.min_translation!r}")
-        if not 0.0 <= self.min_rotation <= math.pi:
-            raise ValueError(f"min_rotation must be within [0, pi] rad, got {self.min_rotation!r}")
-        if not 0.0 < self.min_sigma_l < 10.0:
-            raise ValueError(f"min_sigma_l must be within (0, 10) m, got {self.min_sigma_l!r}")
-        if not 0.0 < self.min_sigma_phi < math.pi:
-            raise ValueError(f"min_sigma_phi must be within (0, pi) rad, got {self.min_sigma_phi!r}")
-        if not 0.0 < self.heading_sigma <= math.pi:
-            raise ValueError(f"heading_sigma must be within (0, pi] rad, got {self.heading_sigma!r}")
 
 
 @dataclass

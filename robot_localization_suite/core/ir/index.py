@@ -62,6 +62,7 @@ from ..errors import CacheError
 from ..grid_map import GridMap
 from ..progress import progress_disabled
 from ..raycast import RayCaster
+from .settings import MAX_HIT_CODE
 
 __all__ = [
     "NO_RETURN",
@@ -80,8 +81,6 @@ _LOG = logging.getLogger(__name__)
 
 #: Byte code of a reading with no return within the model's maximum range.
 NO_RETURN = 255
-#: Largest byte code of a hit.
-MAX_HIT_CODE = 254
 #: Bump when the cache layout or the meaning of a stored array changes.
 CACHE_VERSION = 4
 
@@ -151,8 +150,8 @@ class IndexSettings:
         split_at_jump: also delimit patterns where consecutive ranges differ by more
             than this [m]; 0 follows the paper (no-returns only).
 
-    No defaults here: :class:`~.ir.IRSettings` holds them (with their sources) and
-    builds this from its fields of the same names (``IRSettings().index_settings()``),
+    No defaults and no checks here: :class:`~.settings.IRSettings` holds and checks them
+    and builds this from its fields of the same names (``IRSettings().index_settings()``),
     so that the two can never disagree.
     """
 
@@ -164,21 +163,6 @@ class IndexSettings:
     pattern_terms_per_end: int
     min_pattern_beams: int
     split_at_jump: float
-
-    def __post_init__(self) -> None:
-        positive = ("grid_resolution", "pattern_max_range", "pattern_range_bin")
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be positive and finite, got {value!r}")
-        for name in ("min_clearance", "split_at_jump"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be >= 0 and finite, got {value!r}")
-        if self.pattern_terms_per_end < 1:
-            raise ValueError(f"pattern_terms_per_end must be >= 1, got {self.pattern_terms_per_end!r}")
-        if self.min_pattern_beams < 1:
-            raise ValueError(f"min_pattern_beams must be >= 1, got {self.min_pattern_beams!r}")
 
 
 # --------------------------------------------------------------------------------------------

@@ -111,7 +111,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -124,7 +124,7 @@ from ..localizer import Estimate, LocalizerStatus
 from ..motion import OdometryMotionModel, odometry_delta
 from ..scan import Scan
 from ..se2 import angle_difference, compose, relative, wrap_angle
-from .index import MAX_HIT_CODE, FanModel, IndexSettings, IRIndex
+from .index import FanModel, IndexSettings, IRIndex
 from .query import (
     DistanceField,
     live_pattern_terms,
@@ -134,228 +134,11 @@ from .query import (
     step2_poses,
     suppress_duplicates,
 )
+from .settings import IRSettings
 
 __all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 
 _LOG = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class IRSettings:
-    """Settings of the IR initialiser and its particle filter (units in brackets, source of each default).
-
-    Scanner model (0 = taken from the first scan):
-        beam_count, field_of_view [rad], max_range [m]: when all three are set the
-            index is built as soon as the map arrives; ``max_range`` is also capped at
-            what one-byte codes hold (254 * range_resolution).
-        angular_resolution [rad]: the fan's ray spacing is the smallest multiple of the
-            scanner's increment at least this (1 degree; the paper uses 1/3 degree).
-    Precomputation (see :class:`~.ir_index.IndexSettings`):
-        grid_resolution [m] (paper: 0.05), range_resolution [m] (0.05, the grid),
-        min_clearance [m], unknown_blocks, pattern_max_range [m] (paper: 5.5),
-        pattern_range_bin [m], pattern_terms_per_end, min_pattern_beams, split_at_jump [m].
-    Query:
-        heading_step [rad] (paper: 5 degrees), patterns_per_live_pattern and
-        step1_positions (the paper's N, unstated), soft_bin_weight, weight_patterns_by_length,
-        step2_range_bin [m], step2_tolerance_bins, use_idf (paper: True), idf_log (False: the
-        paper's ratio; True: its logarithm, the usual idf), no_return_terms,
-        refine_candidates (0 = the paper's ranking), refine_iterations, refine_sigma [m],
-        refine_max_shift [m], refine_max_turn [rad], nms_distance [m], nms_angle [rad],
-        max_candidates, fallback_positions (a scan step 1 cannot place, hits but no delimited
-        pattern, goes to step 2 over about this many positions spread evenly; 0 = no candidates, the paper).
-    Tracking:
-        particle_count (paper: 100), update_min_d [m] (paper: 1 m), update_min_a [rad]
-        (paper: 20 degrees), alpha1..alpha4 (nav2 names; 0.02 here, as mcl_baseline's config:
-        nav2's 0.2 spreads 100 particles 0.45 m and 26 degrees per metre, 0.05 still let the cloud
-        drift off on the Orebro log (correct rate 0.72), 0.01-0.02 tracked it at 0.98-1.0 and still
-        cover the simulator's odometry (alpha3 0.05)),
-        max_beams (end-points scored per update), endpoint_tolerance [m],
-        score_exponent (paper: 1, the raw vote; 4 here: on the test floor the vote left 100
-        particles 0.4-1.8 m wide and converging late, 4 keeps them 0.16-0.19 m wide from the
-        second update, 10 and more lock onto look-alike places), lost_score_threshold,
-        lost_score_ratio (an update is poor when the best end-point score is below the
-        threshold or below this fraction of its running average: maps and sensors differ in
-        how well a right pose scores), lost_update_count, global_check_updates (every this many
-        updates the scan is also fixed globally and the filter restarts from that fix when its best
-        pose fits the map better by global_check_margin than the tracked pose, both refined and
-        scored alike; 0 = never, the paper. On a right track both scores agree to 1e-4; after the
-        kidnappings of the simulated bags the true place scored 0.01-0.015 better than the twin the
-        particles followed, so 0.01),
-        localized_spread [m], seed.
-    Cache:
-        cache_dir ('' = ``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``),
-        use_cache, progress (tqdm bar while precomputing; off whatever this says when
-        ``$TQDM_DISABLE`` is set, as in rls_bench's child runs: core/progress.py), cache_budget_mb [MB] (after writing
-        an index, the least recently used ones in ``<cache_dir>/ir/`` are deleted down to this;
-        0 = ``$RLS_CACHE_BUDGET_MB`` or 2048, room for 5-15 indexes of 120-400 MB; see core/cache.py).
-    """
-
-    beam_count: int = 0
-    field_of_view: float = 0.0
-    max_range: float = 0.0
-    angular_resolution: float = math.radians(1.0)
-    grid_resolution: float = 0.05
-    range_resolution: float = 0.05
-    min_clearance: float = 0.15
-    unknown_blocks: bool = False
-    pattern_max_range: float = 5.5
-    pattern_range_bin: float = 0.10
-    pattern_terms_per_end: int = 30
-    min_pattern_beams: int = 3
-    split_at_jump: float = 0.5
-    heading_step: float = math.radians(5.0)
-    patterns_per_live_pattern: int = 200
-    step1_positions: int = 300
-    soft_bin_weight: float = 0.5
-    weight_patterns_by_length: bool = False
-    step2_range_bin: float = 0.10
-    step2_tolerance_bins: int = 1
-    use_idf: bool = True
-    idf_log: bool = False
-    no_return_terms: bool = True
-    refine_candidates: int = 300
-    refine_iterations: int = 8
-    refine_sigma: float = 0.15
-    refine_max_shift: float = 0.3
-    refine_max_turn: float = math.radians(10.0)
-    nms_distance: float = 0.3
-    nms_angle: float = math.radians(15.0)
-    max_candidates: int = 100
-    fallback_positions: int = 3000
-    particle_count: int = 100
-    update_min_d: float = 1.0
-    update_min_a: float = math.radians(20.0)
-    alpha1: float = 0.02
-    alpha2: float = 0.02
-    alpha3: float = 0.02
-    alpha4: float = 0.02
-    max_beams: int = 90
-    endpoint_tolerance: float = 0.1
-    score_exponent: float = 4.0
-    lost_score_threshold: float = 0.3
-    lost_score_ratio: float = 0.6
-    lost_update_count: int = 3
-    global_check_updates: int = 2
-    global_check_margin: float = 0.01
-    localized_spread: float = 0.5
-    seed: int = 0
-    cache_dir: str = ""
-    use_cache: bool = True
-    progress: bool = True
-    cache_budget_mb: float = 0.0
-
-    def __post_init__(self) -> None:
-        positive = (
-            "angular_resolution",
-            "grid_resolution",
-            "range_resolution",
-            "pattern_max_range",
-            "pattern_range_bin",
-            "heading_step",
-            "step2_range_bin",
-            "refine_sigma",
-            "localized_spread",
-        )
-        non_negative = (
-            "field_of_view",
-            "max_range",
-            "min_clearance",
-            "split_at_jump",
-            "soft_bin_weight",
-            "refine_max_shift",
-            "refine_max_turn",
-            "nms_distance",
-            "nms_angle",
-            "update_min_d",
-            "update_min_a",
-            "alpha1",
-            "alpha2",
-            "alpha3",
-            "alpha4",
-            "endpoint_tolerance",
-            "score_exponent",
-            "lost_score_threshold",
-            "lost_score_ratio",
-            "global_check_margin",
-            "cache_budget_mb",
-        )
-        at_least_one = (
-            "pattern_terms_per_end",
-            "min_pattern_beams",
-            "patterns_per_live_pattern",
-            "step1_positions",
-            "max_candidates",
-            "particle_count",
-            "max_beams",
-            "lost_update_count",
-        )
-        non_negative_int = (
-            "beam_count",
-            "step2_tolerance_bins",
-            "refine_candidates",
-            "refine_iterations",
-            "fallback_positions",
-            "global_check_updates",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"IR setting {name} must be positive and finite, got {value!r}")
-        for name in non_negative:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"IR setting {name} must be >= 0 and finite, got {value!r}")
-        for name in at_least_one:
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"IR setting {name} must be >= 1, got {getattr(self, name)!r}")
-        for name in non_negative_int:
-            if int(getattr(self, name)) < 0:
-                raise ValueError(f"IR setting {name} must be >= 0, got {getattr(self, name)!r}")
-        if self.field_of_view > 2.0 * math.pi + 1e-9:
-            raise ValueError(f"IR setting field_of_view must be <= 2 pi, got {self.field_of_view!r}")
-        if self.heading_step > math.pi:
-            raise ValueError(f"IR setting heading_step must be <= pi, got {self.heading_step!r}")
-        for name in ("lost_score_threshold", "lost_score_ratio"):
-            if getattr(self, name) > 1.0:
-                raise ValueError(f"IR setting {name} is a fraction <= 1, got {getattr(self, name)!r}")
-        for name in ("pattern_range_bin", "step2_range_bin"):
-            if getattr(self, name) < self.range_resolution:
-                raise ValueError(
-                    f"IR setting {name} must be >= range_resolution {self.range_resolution!r}, got {getattr(self, name)!r}"
-                )
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> IRSettings:
-        """Settings from a dict of (possibly more) values, e.g. ROS parameters; unknown keys are ignored."""
-        names = {f.name: f for f in fields(cls)}
-        kwargs = {}
-        for name, value in values.items():
-            if name in names:
-                default = names[name].default
-                kwargs[name] = type(default)(value) if isinstance(default, (bool, int, float, str)) else value
-        return cls(**kwargs)
-
-    def index_settings(self) -> IndexSettings:
-        """The precomputation settings (and so the cache key) taken from the fields of the same names.
-
-        :class:`~.ir_index.IndexSettings` has no defaults of its own: these are the only ones.
-        """
-        return IndexSettings(**{f.name: getattr(self, f.name) for f in fields(IndexSettings)})
-
-    @property
-    def heading_count(self) -> int:
-        return max(1, int(round(2.0 * math.pi / self.heading_step)))
-
-    def fan_model(self, increment: float, range_max: float) -> FanModel:
-        """The fan for a scanner with this angular ``increment`` [rad] and ``range_max`` [m]."""
-        increment = abs(increment)
-        if not (np.isfinite(increment) and increment > 0.0):
-            raise ScanError(f"scan angle increment {increment!r} is unusable for the IR precomputation")
-        stride = max(1, int(math.ceil(self.angular_resolution / increment - 1e-6)))
-        rays = max(8, int(round(2.0 * math.pi / (stride * increment))))
-        cap = MAX_HIT_CODE * self.range_resolution
-        limit = self.max_range if self.max_range > 0.0 else range_max
-        return FanModel(rays=rays, max_range=float(min(limit, range_max, cap)), range_resolution=self.range_resolution)
 
 
 def _low_variance_resample(weights: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:

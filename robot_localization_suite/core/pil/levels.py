@@ -45,7 +45,7 @@ __all__ = [
     "fill_invalid_circular",
 ]
 
-LEVEL_FUNCTION_NAMES = ("energy", "pq", "harmonic1", "harmonic2", "low_quantile", "high_quantile")
+from .settings import LEVEL_FUNCTION_NAMES
 
 
 def energy(profiles: NDArray[np.floating]) -> NDArray[np.float64]:

@@ -87,7 +87,6 @@ from ..scan import Scan
 from ..se2 import angle_difference, compose, relative, wrap_angle
 from .learning import PilLearning, learn_pseudo_images
 from .levels import (
-    LEVEL_FUNCTION_NAMES,
     LevelFunction,
     energy,
     fill_invalid_circular,
@@ -96,7 +95,6 @@ from .levels import (
     profile_quantile,
 )
 from .matching import (
-    BEAM_MAPPINGS,
     BeamMapping,
     LiveProfile,
     SensorLayout,
@@ -108,176 +106,11 @@ from .matching import (
     sheet_sectors,
     truncated_scores,
 )
+from .settings import LEVEL_FUNCTION_NAMES, PilSettings
 
 __all__ = ["PilSettings", "PilLocalizer", "make_level_functions"]
 
 _logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class PilSettings:
-    """Settings of PIL; units in brackets, sources in comments.
-
-    Learning (section 2.2):
-        tile_size: ``r`` [m] (paper: 20 cm).
-        sensor_count: ``N_s`` sensors evenly spaced over the field of view (paper: 57).
-        max_range: ``R`` [m] (paper figure 1: 6 m; 10 m suits the 30 m x 11 m floor).
-        field_of_view: angle the learned sensors cover [rad] (paper: 2 pi; a scan with another
-            field of view triggers a relearning).
-        angular_upsampling: learned directions per sensor step (DESIGN.md: 4x finer profiles).
-        reference_headings: ``K`` heading sheets for a limited field of view (DESIGN.md: 8 as good as 16 or 36).
-        unknown_blocks: whether unknown map cells stop the learning rays.
-        beam_mapping: ``"nearest"`` or ``"sector_min"`` (see :mod:`.pil_matching`).
-
-    Level functions (section 2.3): ``<name>_enabled``, ``<name>_alpha`` (``alpha_n``),
-    ``<name>_sigma`` (``sigma_n``, intensity units). The paper uses alpha 1 and sigma 0.05 for
-    Energy and pq%; the defaults here are measured: about 2.5 x the robust spread (1.48 MAD) of
-    ``I_n - E_n`` at the true tile over the Intel log (180 degrees, K = 8, R = 10 m), so that
-    equation (4) keeps the true tile for most real scans and the ranking weighs each function by
-    its reliability.
-        pq_low, pq_high: ``p`` and ``q`` of pq% (paper figure 2: 0.25 and 0.75).
-        low_quantile_level, high_quantile_level: the quantiles of the sorted profile.
-
-    Candidates (sections 2.4, 2.7):
-        min_candidates: add best-ranked tiles until this many (0: the paper's pure filter). 600:
-            on the real logs the true tile's rank is below 300 in 70-80 % of scans, below 1000 in
-            80-91 % (measured); 600 keeps an update near 10 ms.
-        max_candidates: keep at most this many passing tiles, best-ranked first.
-        rank_term_cap: cap of each function's ``(alpha_n |I_n - E_n| / sigma_n)^2`` in the ranking
-            (9: three sigma). Measured on floor_kidnap (people walking by): the true tile ranks in
-            the top 300 for 94 % of scans instead of 91 % uncapped.
-        window_size: side of the square search window [m] (paper section 4.2: 4 m); <= 0: whole map.
-        global_candidates: best-ranked tiles outside the window scored with every windowed update
-            (0: the paper's hard window). Without them a window that settled on the twin of a
-            symmetric place never lets go (measured on corridor_kidnap).
-        global_switch_margin: a place outside the window replaces the window's best once its
-            accumulated score advantage exceeds this (normalised score; see ``_prefer_window``).
-
-    Theta and scoring (section 2.5):
-        score_truncation: ``tau`` of the truncated squared difference [intensity units].
-        shift_hypotheses: local correlation optima rescored per candidate.
-        refine_candidates: best candidates refined below the tile size (0: off).
-        refine_iterations: Gauss-Newton iterations of the refinement.
-        refine_beams: live hits used by the refinement at most.
-        refine_truncation: endpoints farther from an obstacle are ignored [m].
-
-    Status:
-        lost_score: best normalised score above which the estimate is LOST.
-        kidnap_score: best score inside the window above which the whole map is searched. Measured
-            on the real logs (global fixes, tau 0.1): correct fixes score 0.03-0.07 (median) and
-            0.1-0.2 (90th percentile), wrong ones 0.19-0.35 (median).
-        ambiguity_margin: score margin of AMBIGUOUS and of the covariance's near-best set.
-        ambiguity_distance: [m] and ambiguity_angle: [rad] what counts as a separate candidate.
-        min_valid_fraction: sensors that must receive a valid beam.
-
-    Cache:
-        cache_dir: directory ("" -> ``$RLS_CACHE_DIR`` or ``~/.cache/robot_localization_suite``).
-        use_cache: read and write the cache.
-        show_progress: tqdm bar while learning.
-    """
-
-    tile_size: float = 0.2
-    sensor_count: int = 57
-    max_range: float = 10.0
-    field_of_view: float = 2.0 * math.pi
-    angular_upsampling: int = 4
-    reference_headings: int = 8
-    unknown_blocks: bool = False
-    beam_mapping: str = "nearest"
-
-    energy_enabled: bool = True
-    energy_alpha: float = 1.0
-    energy_sigma: float = 0.03
-    pq_enabled: bool = True
-    pq_low: float = 0.25
-    pq_high: float = 0.75
-    pq_alpha: float = 1.0
-    pq_sigma: float = 0.08
-    harmonic1_enabled: bool = True
-    harmonic1_alpha: float = 1.0
-    harmonic1_sigma: float = 0.025
-    harmonic2_enabled: bool = True
-    harmonic2_alpha: float = 1.0
-    harmonic2_sigma: float = 0.02
-    low_quantile_enabled: bool = True
-    low_quantile_level: float = 0.1
-    low_quantile_alpha: float = 1.0
-    low_quantile_sigma: float = 0.06
-    high_quantile_enabled: bool = True
-    high_quantile_level: float = 0.9
-    high_quantile_alpha: float = 1.0
-    high_quantile_sigma: float = 0.02
-
-    min_candidates: int = 600
-    max_candidates: int = 1000
-    rank_term_cap: float = 9.0
-    window_size: float = 4.0
-    global_candidates: int = 50
-    global_switch_margin: float = 0.05
-
-    score_truncation: float = 0.1
-    shift_hypotheses: int = 3
-    refine_candidates: int = 20
-    refine_iterations: int = 10
-    refine_beams: int = 180
-    refine_truncation: float = 0.3
-
-    lost_score: float = 0.5
-    kidnap_score: float = 0.2
-    ambiguity_margin: float = 0.03
-    ambiguity_distance: float = 1.0
-    ambiguity_angle: float = 0.5
-    min_valid_fraction: float = 0.3
-
-    cache_dir: str = ""
-    use_cache: bool = True
-    show_progress: bool = True
-
-    def __post_init__(self) -> None:
-        def positive(name: str) -> None:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"PilSettings.{name} must be positive, got {value!r}")
-
-        for name in ("tile_size", "max_range", "score_truncation", "refine_truncation", "ambiguity_distance", "rank_term_cap"):
-            positive(name)
-        for name in LEVEL_FUNCTION_NAMES:
-            positive(f"{name}_alpha")
-            positive(f"{name}_sigma")
-        if self.max_range > 65.0:
-            raise ValueError(f"PilSettings.max_range must be at most 65 m, got {self.max_range!r}")
-        if not 0.0 < self.field_of_view <= 2.0 * math.pi + 1e-9:
-            raise ValueError(f"PilSettings.field_of_view must be in (0, 2 pi] rad, got {self.field_of_view!r}")
-        if self.sensor_count < 4:
-            raise ValueError(f"PilSettings.sensor_count must be at least 4, got {self.sensor_count!r}")
-        if self.angular_upsampling < 1:
-            raise ValueError(f"PilSettings.angular_upsampling must be at least 1, got {self.angular_upsampling!r}")
-        if self.reference_headings < 1:
-            raise ValueError(f"PilSettings.reference_headings must be at least 1, got {self.reference_headings!r}")
-        if self.beam_mapping not in BEAM_MAPPINGS:
-            raise ValueError(f"PilSettings.beam_mapping must be one of {BEAM_MAPPINGS}, got {self.beam_mapping!r}")
-        if not 0.0 <= self.pq_low < self.pq_high <= 1.0:
-            raise ValueError(f"PilSettings needs 0 <= pq_low < pq_high <= 1, got {self.pq_low!r}, {self.pq_high!r}")
-        for name in ("low_quantile_level", "high_quantile_level", "min_valid_fraction"):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f"PilSettings.{name} must be in [0, 1], got {value!r}")
-        if self.harmonic2_enabled and self.sensor_count < 5:
-            raise ValueError(f"PilSettings.harmonic2 needs at least 5 sensors, got {self.sensor_count!r}")
-        for name in ("min_candidates", "refine_candidates"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"PilSettings.{name} must be >= 0, got {getattr(self, name)!r}")
-        if self.global_candidates < 0:
-            raise ValueError(f"PilSettings.global_candidates must be >= 0, got {self.global_candidates!r}")
-        for name in ("max_candidates", "shift_hypotheses", "refine_iterations", "refine_beams"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"PilSettings.{name} must be >= 1, got {getattr(self, name)!r}")
-        if not np.isfinite(self.window_size):
-            raise ValueError(f"PilSettings.window_size must be finite, got {self.window_size!r}")
-        for name in ("lost_score", "kidnap_score", "ambiguity_margin", "ambiguity_angle", "global_switch_margin"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0.0):
-                raise ValueError(f"PilSettings.{name} must be >= 0, got {value!r}")
 
 
 def make_level_functions(settings: PilSettings) -> list[LevelFunction]:

@@ -48,6 +48,7 @@ from ..filter.gauss_newton import solve_symmetric_3x3
 from ..scan import Scan
 from ..se2 import wrap_angle
 from .levels import LevelFunction
+from .settings import BEAM_MAPPINGS
 
 __all__ = [
     "SensorLayout",
@@ -63,7 +64,6 @@ __all__ = [
     "sheet_sectors",
 ]
 
-BEAM_MAPPINGS = ("nearest", "sector_min")
 _TWO_PI = 2.0 * np.pi
 
 

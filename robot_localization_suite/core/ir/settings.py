@@ -1,0 +1,150 @@
+"""Every parameter of ``ir_initializer`` (Aycard & Brouard, seed 001), with the paper's value where it gives one.
+
+Angles are radians (REP 103); nav2_amcl's names where it has the same notion (``alpha1..4``,
+``update_min_d``, ``update_min_a``, ``max_beams``). Why each default departs from the paper: docs/ir.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
+
+from ..errors import ScanError, SettingsError
+from ..settings import Settings, setting
+
+if TYPE_CHECKING:
+    from .index import FanModel, IndexSettings
+
+__all__ = ["IRSettings", "MAX_HIT_CODE"]
+
+# Largest range code of a one-byte quantised reading (255 marks a no-return).
+MAX_HIT_CODE = 254
+_BIG = 1e7
+
+
+@dataclass(frozen=True)
+class IRSettings(Settings):
+    """Settings of :class:`~.localizer.IRLocalizer`: scanner model, precomputation (IV-A), query (IV-B),
+    tracking (IV-C, IV-D) and the index cache."""
+
+    # scanner model (0: from the first scan)
+    beam_count: int = setting(0, "scanner beams; 0: from the first scan", low=0, high=100_000, read_only=True)
+    field_of_view: float = setting(0.0, "scanner field of view; 0: from the first scan", unit="rad",
+                                   low=0.0, high=2.0 * math.pi, read_only=True)
+    max_range: float = setting(0.0, "longest range precomputed, capped at 254 * range_resolution; 0: the first "
+                               "scan's range_max", unit="m", low=0.0, high=1e4, read_only=True)
+    angular_resolution: float = setting(math.radians(1.0), "precomputed rays at least this far apart "
+                                        "(ours 1 deg; paper 1/3 deg)", unit="rad", low=1e-4, high=math.pi / 4,
+                                        read_only=True)
+    # precomputation (IV-A)
+    grid_resolution: float = setting(0.05, "spacing of the candidate positions (paper 0.05)", unit="m",
+                                     low=0.005, high=10.0, read_only=True)
+    range_resolution: float = setting(0.05, "quantisation of stored ranges", unit="m", low=0.001, high=1.0,
+                                      read_only=True)
+    min_clearance: float = setting(0.15, "positions at least this far from obstacles and unknown cells", unit="m",
+                                   low=0.0, high=10.0, read_only=True)
+    unknown_blocks: bool = setting(False, "unknown cells stop the precomputed rays", read_only=True)
+    pattern_max_range: float = setting(5.5, "beyond this a reading ends a pattern (paper 5.5)", unit="m",
+                                       low=0.01, high=1e4, read_only=True)
+    pattern_range_bin: float = setting(0.10, "range bin of a first-level hit", unit="m", low=0.001, high=10.0,
+                                       read_only=True)
+    pattern_terms_per_end: int = setting(30, "beams indexed from each end of a pattern", low=1, high=100_000,
+                                         read_only=True)
+    min_pattern_beams: int = setting(3, "shortest pattern, in beams", low=1, high=100_000, read_only=True)
+    split_at_jump: float = setting(0.5, "range jump that also ends a pattern; 0: no-returns only (paper)", unit="m",
+                                   low=0.0, high=1e3, read_only=True)
+    # query (IV-B)
+    heading_step: float = setting(math.radians(5.0), "heading step of step 2 (paper 5 deg)", unit="rad",
+                                  low=1e-3, high=math.pi)
+    patterns_per_live_pattern: int = setting(200, "step 1: closest patterns kept per live pattern (paper N)",
+                                             low=1, high=10_000_000)
+    step1_positions: int = setting(300, "step 1: positions passed to step 2 (paper N)", low=1, high=10_000_000)
+    soft_bin_weight: float = setting(0.5, "step 1: weight of a hit in a neighbouring range bin", low=0.0, high=1.0)
+    weight_patterns_by_length: bool = setting(False, "step 1: a live pattern votes by its length")
+    step2_range_bin: float = setting(0.10, "step 2: range bin of a beam hit", unit="m", low=0.001, high=10.0)
+    step2_tolerance_bins: int = setting(1, "step 2: a pose holds a hit within this many bins", low=0, high=1000)
+    use_idf: bool = setting(True, "step 2: idf weights (paper); false: plain counting")
+    idf_log: bool = setting(False, "step 2: log(N / df) instead of the paper's N / df")
+    no_return_terms: bool = setting(True, "step 2: no-return readings are hits of their own bin")
+    refine_candidates: int = setting(300, "best step-2 poses aligned to the map and re-ranked; 0: paper's list",
+                                     low=0, high=1_000_000)
+    refine_iterations: int = setting(8, "Gauss-Newton iterations of the refinement", low=0, high=1000)
+    refine_sigma: float = setting(0.15, "end-point likelihood width of the refinement", unit="m",
+                                  low=0.0, low_open=True, high=10.0)
+    refine_max_shift: float = setting(0.3, "refinement moves a pose at most this far", unit="m", low=0.0, high=10.0)
+    refine_max_turn: float = setting(math.radians(10.0), "refinement turns a pose at most this much", unit="rad",
+                                     low=0.0, high=math.pi)
+    nms_distance: float = setting(0.3, "candidates this close to a better one are dropped; 0: keep all", unit="m",
+                                  low=0.0, high=100.0)
+    nms_angle: float = setting(math.radians(15.0), "... and within this heading", unit="rad", low=0.0, high=math.pi)
+    max_candidates: int = setting(100, "candidates returned by an initialisation", low=1, high=10_000_000)
+    fallback_positions: int = setting(3000, "a scan with hits but no delimited pattern is matched against about "
+                                      "this many positions; 0: no candidates (paper)", low=0, high=10_000_000)
+    # tracking (IV-C, IV-D)
+    particle_count: int = setting(100, "particles tracked after an initialisation (paper 100)", low=1, high=10_000_000)
+    update_min_d: float = setting(1.0, "translation before a filter update (paper 1 m)", unit="m", low=0.0, high=1e3)
+    update_min_a: float = setting(math.radians(20.0), "rotation before a filter update (paper 20 deg)", unit="rad",
+                                  low=0.0, high=7.0)
+    alpha1: float = setting(0.02, "rotation noise from rotation (nav2 name and meaning)", low=0.0, high=100.0)
+    alpha2: float = setting(0.02, "rotation noise from translation", low=0.0, high=100.0)
+    alpha3: float = setting(0.02, "translation noise from translation", low=0.0, high=100.0)
+    alpha4: float = setting(0.02, "translation noise from rotation", low=0.0, high=100.0)
+    max_beams: int = setting(90, "end-points scored per update (nav2 name)", low=1, high=100_000)
+    endpoint_tolerance: float = setting(0.1, "an end-point within this of an occupied cell scores; 0: the cell "
+                                        "(paper)", unit="m", low=0.0, high=10.0)
+    score_exponent: float = setting(4.0, "particle weight = end-point score ** this (paper 1)", low=0.0, high=1000.0)
+    lost_score_threshold: float = setting(0.3, "best end-point score below this counts towards LOST",
+                                          low=0.0, high=1.0)
+    lost_score_ratio: float = setting(0.6, "... or below this fraction of its running average over good updates",
+                                      low=0.0, high=1.0)
+    lost_update_count: int = setting(3, "updates in a row below the threshold before reinitialising",
+                                     low=1, high=1_000_000)
+    global_check_updates: int = setting(2, "every this many updates, restart from a global fix that fits clearly "
+                                        "better; 0: never (paper)", low=0, high=1_000_000)
+    global_check_margin: float = setting(0.01, "... better by this much of the mean end-point likelihood",
+                                         low=0.0, high=1.0)
+    localized_spread: float = setting(0.5, "LOCALIZED when the particles' xy spread is at most this", unit="m",
+                                      low=0.0, low_open=True, high=1e3)
+    seed: int = setting(0, "seed of the filter's random numbers", low=0, high=2**31 - 1)
+    # cache
+    cache_dir: str = setting("", "index cache directory; empty: $RLS_CACHE_DIR or ~/.cache/robot_localization_suite",
+                             read_only=True)
+    use_cache: bool = setting(True, "load and save the precomputed index on disk", read_only=True)
+    progress: bool = setting(True, "show a progress bar while precomputing")
+    cache_budget_mb: float = setting(0.0, "after writing an index, delete the least recently used ones beyond this; "
+                                     "0: $RLS_CACHE_BUDGET_MB or 2048", unit="MB", low=0.0, high=1e9)
+
+    def validate(self) -> None:
+        for name in ("pattern_range_bin", "step2_range_bin"):
+            if getattr(self, name) < self.range_resolution:
+                raise SettingsError(
+                    f"IRSettings.{name} must be >= range_resolution {self.range_resolution!r}, "
+                    f"got {getattr(self, name)!r}"
+                )
+
+    def index_settings(self) -> IndexSettings:
+        """The precomputation settings (and so the cache key) taken from the fields of the same names.
+
+        :class:`~.index.IndexSettings` has no defaults of its own: these are the only ones.
+        """
+        from .index import IndexSettings
+
+        return IndexSettings(**{f.name: getattr(self, f.name) for f in fields(IndexSettings)})
+
+    @property
+    def heading_count(self) -> int:
+        return max(1, int(round(2.0 * math.pi / self.heading_step)))
+
+    def fan_model(self, increment: float, range_max: float) -> FanModel:
+        """The fan for a scanner with this angular ``increment`` [rad] and ``range_max`` [m]."""
+        from .index import FanModel
+
+        increment = abs(increment)
+        if not (math.isfinite(increment) and increment > 0.0):
+            raise ScanError(f"scan angle increment {increment!r} is unusable for the IR precomputation")
+        stride = max(1, int(math.ceil(self.angular_resolution / increment - 1e-6)))
+        rays = max(8, int(round(2.0 * math.pi / (stride * increment))))
+        cap = MAX_HIT_CODE * self.range_resolution
+        limit = self.max_range if self.max_range > 0.0 else range_max
+        return FanModel(rays=rays, max_range=float(min(limit, range_max, cap)), range_resolution=self.range_resolution)

@@ -1,0 +1,164 @@
+"""Every parameter of ``mcl_baseline``, with nav2_amcl's names where nav2 has the concept.
+
+Each default says its source: "nav2 X" is nav2_amcl's default (jazzy ``amcl_node.cpp``)
+where ours differs, "ours" a setting nav2 does not have. Why each differs: docs/mcl.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import SettingsError
+from ..motion import OdometryMotionModel
+from ..settings import Settings, setting
+
+__all__ = ["MclSettings", "LASER_MODEL_TYPES", "ROBOT_MODEL_TYPES", "RECOVERY_SAMPLINGS"]
+
+LASER_MODEL_TYPES = ("likelihood_field", "beam")
+RECOVERY_SAMPLINGS = ("measurement", "uniform")
+# nav2 (jazzy) names its motion-model plugins; older configs use the short names.
+ROBOT_MODEL_TYPES = {
+    "differential": False,
+    "nav2_amcl::DifferentialMotionModel": False,
+    "omnidirectional": True,
+    "omni": True,
+    "nav2_amcl::OmniMotionModel": True,
+}
+_BIG = 1e6
+
+
+@dataclass(frozen=True)
+class MclSettings(Settings):
+    """Settings of :class:`~.localizer.MonteCarloLocalizer` (docs/mcl.md argues each departure from nav2)."""
+
+    min_particles: int = setting(500, "fewest particles KLD-sampling keeps (nav2 500)", low=1, high=10_000_000)
+    max_particles: int = setting(
+        50000, "most particles; also the size of a global or initial cloud (nav2 2000)", low=1, high=10_000_000
+    )
+    alpha1: float = setting(
+        0.02, "rotation noise from rotation, std = sqrt(alpha1 rot^2 + alpha2 trans^2) (nav2 0.2)", low=0.0, high=100.0
+    )
+    alpha2: float = setting(0.02, "rotation noise from translation (nav2 0.2)", low=0.0, high=100.0)
+    alpha3: float = setting(0.02, "translation noise from translation (nav2 0.2)", low=0.0, high=100.0)
+    alpha4: float = setting(0.02, "translation noise from rotation (nav2 0.2)", low=0.0, high=100.0)
+    alpha5: float = setting(
+        0.02, "strafe noise from translation, omnidirectional model only (nav2 0.2)", low=0.0, high=100.0
+    )
+    robot_model_type: str = setting(
+        "differential", "odometry motion model (nav2 plugin names accepted)", choices=tuple(ROBOT_MODEL_TYPES)
+    )
+    laser_model_type: str = setting("likelihood_field", "laser sensor model (nav2 likelihood_field)",
+                                    choices=LASER_MODEL_TYPES)
+    z_hit: float = setting(0.5, "weight of the hit component of the laser model (nav2 0.5)", low=0.0, high=_BIG)
+    z_short: float = setting(0.05, "weight of the short-reading component, beam model (nav2 0.05)", low=0.0, high=_BIG)
+    z_max: float = setting(0.05, "weight of the max-range component, beam model (nav2 0.05)", low=0.0, high=_BIG)
+    z_rand: float = setting(0.5, "weight of the random-reading component (nav2 0.5)", low=0.0, high=_BIG)
+    sigma_hit: float = setting(0.2, "standard deviation of the hit Gaussian (nav2 0.2)", unit="m",
+                               low=0.0, low_open=True, high=100.0)
+    lambda_short: float = setting(0.1, "decay of the short-reading exponential, beam model (nav2 0.1)", unit="1/m",
+                                  low=0.0, low_open=True, high=_BIG)
+    laser_likelihood_max_dist: float = setting(
+        2.0, "distance to obstacles beyond which the likelihood field is flat (nav2 2.0)", unit="m",
+        low=0.0, low_open=True, high=1e3,
+    )
+    max_beams: int = setting(60, "valid beams used per scan, evenly spaced (nav2 60)", low=1, high=100_000)
+    laser_max_range: float = setting(
+        100.0, "readings at or beyond are no-returns; <= 0: the scan's range_max (nav2 100)", unit="m",
+        low=-1.0, high=_BIG,
+    )
+    laser_min_range: float = setting(
+        -1.0, "readings below are ignored; <= 0: the scan's range_min (nav2 -1)", unit="m", low=-1.0, high=_BIG
+    )
+    update_min_d: float = setting(0.25, "translation before a filter update (nav2 0.25)", unit="m", low=0.0, high=1e3)
+    update_min_a: float = setting(0.2, "rotation before a filter update (nav2 0.2)", unit="rad", low=0.0, high=7.0)
+    resample_interval: int = setting(1, "filter updates between resamplings (nav2 1)", low=1, high=1000)
+    resample_effective_fraction: float = setting(
+        0.5, "resample only when the effective sample size is below this fraction of the particles "
+        "(1.0: every resample_interval updates, as nav2; ours)", low=0.0, low_open=True, high=1.0,
+    )
+    recovery_alpha_slow: float = setting(
+        0.001, "rate of the slow average of the scan fit; 0 with recovery_alpha_fast 0 disables recovery "
+        "(nav2 0.0, suggests 0.001)", low=0.0, high=1.0,
+    )
+    recovery_alpha_fast: float = setting(
+        0.1, "rate of the fast average of the scan fit (nav2 0.0, suggests 0.1)", low=0.0, high=1.0
+    )
+    recovery_min_injection: float = setting(
+        0.05, "random-particle fractions below this are not injected (ours)", low=0.0, high=1.0
+    )
+    recovery_sampling: str = setting(
+        "measurement", "injected poses: the best-fitting of many uniform draws (measurement, ours) or uniform (nav2)",
+        choices=RECOVERY_SAMPLINGS,
+    )
+    recovery_candidates: int = setting(
+        10, "uniform draws scored per injected particle with recovery_sampling measurement (ours)", low=1, high=1000
+    )
+    pf_err: float = setting(0.05, "KLD-sampling: bound on the Kullback-Leibler error (nav2 0.05)",
+                            low=0.0, low_open=True, high=1.0)
+    pf_z: float = setting(
+        0.99, "KLD-sampling: normal quantile of the bound, used as nav2 uses it (nav2 0.99)", low=0.0, high=10.0
+    )
+    set_initial_pose: bool = setting(False, "start around initial_pose.* instead of uniformly over free space (nav2)")
+    initial_pose_x: float = setting(0.0, "initial pose x in the map (nav2)", unit="m", low=-_BIG, high=_BIG,
+                                    ros_name="initial_pose.x")
+    initial_pose_y: float = setting(0.0, "initial pose y in the map (nav2)", unit="m", low=-_BIG, high=_BIG,
+                                    ros_name="initial_pose.y")
+    initial_pose_yaw: float = setting(0.0, "initial pose heading in the map (nav2)", unit="rad", low=-7.0, high=7.0,
+                                      ros_name="initial_pose.yaw")
+    initial_std_xy: float = setting(
+        0.5, "position standard deviation around initial_pose.* (ROS 1 amcl 0.5; nav2 uses zero)", unit="m",
+        low=0.0, high=1e3,
+    )
+    initial_std_yaw: float = setting(
+        math.pi / 12.0, "heading standard deviation around initial_pose.* (ROS 1 amcl pi/12)", unit="rad",
+        low=0.0, high=7.0,
+    )
+    effective_beams: float = setting(
+        20.0, "independent beams a scan counts for in the particle weight (tempering; ours)",
+        low=0.0, low_open=True, high=_BIG,
+    )
+    min_effective_fraction: float = setting(
+        0.1, "adaptive tempering keeps at least this share of effective particles per update; 0: off (ours)",
+        low=0.0, high=1.0,
+    )
+    random_seed: int = setting(0, "seed of the filter's random numbers; -1: from the OS (ours)", low=-1, high=2**31 - 1)
+    cluster_weight_mass: float = setting(0.99, "share of the weight whose particles are clustered (ours)",
+                                         low=0.0, low_open=True, high=1.0)
+    localized_max_std_xy: float = setting(
+        0.25, "LOCALIZED needs the cluster's position std at most this (ours)", unit="m",
+        low=0.0, low_open=True, high=1e3,
+    )
+    localized_max_std_yaw: float = setting(
+        0.15, "LOCALIZED needs the cluster's heading std at most this (ours)", unit="rad",
+        low=0.0, low_open=True, high=7.0,
+    )
+    localized_min_effective_particles: float = setting(
+        10.0, "LOCALIZED needs at least this effective sample size (ours)", low=0.0, high=1e9
+    )
+    lost_fit_ratio: float = setting(
+        0.6, "the fit is collapsing (not LOCALIZED) when w_fast < this * w_slow (ours)", low=0.0, high=1.0
+    )
+    ambiguous_cluster_weight: float = setting(
+        0.2, "a second cluster this heavy makes the state AMBIGUOUS (ours)", low=0.0, high=1.0
+    )
+    max_reported_particles: int = setting(
+        5000, "particles returned with each estimate, heaviest first (ours)", low=0, high=10_000_000
+    )
+
+    def validate(self) -> None:
+        if self.min_particles > self.max_particles:
+            raise SettingsError(
+                f"MclSettings.min_particles ({self.min_particles!r}) exceeds max_particles ({self.max_particles!r})"
+            )
+        if self.z_hit + self.z_rand <= 0.0:
+            raise SettingsError(f"MclSettings.z_hit + z_rand must be positive, got {self.z_hit!r} + {self.z_rand!r}")
+
+    @property
+    def omnidirectional(self) -> bool:
+        return ROBOT_MODEL_TYPES[self.robot_model_type]
+
+    def motion_model(self) -> OdometryMotionModel:
+        return OdometryMotionModel(
+            self.alpha1, self.alpha2, self.alpha3, self.alpha4, self.alpha5, omnidirectional=self.omnidirectional
+        )

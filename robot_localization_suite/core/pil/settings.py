@@ -1,0 +1,120 @@
+"""Every parameter of ``pil_localizer`` (Lambert et al. 2020), with the paper's value where it gives one.
+
+Angles a user types are degrees in ROS (``field_of_view_deg``, ``ambiguity_angle_deg``) and
+radians inside. Why each default departs from the paper: docs/pil.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import SettingsError
+from ..settings import Settings, setting
+
+__all__ = ["PilSettings", "BEAM_MAPPINGS", "LEVEL_FUNCTION_NAMES"]
+
+BEAM_MAPPINGS = ("nearest", "sector_min")
+LEVEL_FUNCTION_NAMES = ("energy", "pq", "harmonic1", "harmonic2", "low_quantile", "high_quantile")
+_BIG = 1e6
+
+
+def _alpha(name: str) -> float:
+    return setting(1.0, f"alpha_n of {name} in equation (4) (paper 1)", low=0.0, low_open=True, high=_BIG)
+
+
+def _sigma(name: str, default: float) -> float:
+    return setting(default, f"sigma_n of {name} in equation (4) (paper 0.05)", unit="intensity",
+                   low=0.0, low_open=True, high=10.0)
+
+
+@dataclass(frozen=True)
+class PilSettings(Settings):
+    """Settings of :class:`~.localizer.PilLocalizer`: learning (section 2.2), level functions (2.3),
+    candidates (2.4, 2.7), heading and score (2.5), status and cache."""
+
+    tile_size: float = setting(0.2, "r: side of a learned tile (paper 0.2)", unit="m", low=0.01, high=5.0,
+                               read_only=True)
+    sensor_count: int = setting(57, "N_s: sensors evenly spaced over the field of view (paper 57)", low=4, high=4096,
+                                read_only=True)
+    max_range: float = setting(10.0, "R: sensor range of the pseudo-images, capped by the scan's range_max "
+                               "(paper figure 1: 6)", unit="m", low=0.1, high=65.0, read_only=True)
+    field_of_view: float = setting(
+        2.0 * math.pi, "field of view learned first; a scan with another one triggers a relearning (paper 360 deg)",
+        unit="rad", ros_unit="deg", low=0.0, low_open=True, high=2.0 * math.pi, ros_name="field_of_view_deg",
+        read_only=True,
+    )
+    angular_upsampling: int = setting(4, "learned directions per sensor step (ours)", low=1, high=64, read_only=True)
+    reference_headings: int = setting(8, "K: heading sheets for a limited field of view (ours)", low=1, high=360,
+                                      read_only=True)
+    unknown_blocks: bool = setting(False, "unknown map cells stop the learning rays", read_only=True)
+    beam_mapping: str = setting("nearest", "live beams -> sensors", choices=BEAM_MAPPINGS)
+
+    energy_enabled: bool = setting(True, "use the level function Energy (mean intensity, paper I_1)")
+    energy_alpha: float = _alpha("energy")
+    energy_sigma: float = _sigma("energy", 0.03)
+    pq_enabled: bool = setting(True, "use the level function pq% (fraction of intensities in [pq_low, pq_high], "
+                               "paper I_2)")
+    pq_low: float = setting(0.25, "p of pq% (paper 0.25)", unit="intensity", low=0.0, high=1.0)
+    pq_high: float = setting(0.75, "q of pq% (paper 0.75)", unit="intensity", low=0.0, high=1.0)
+    pq_alpha: float = _alpha("pq")
+    pq_sigma: float = _sigma("pq", 0.08)
+    harmonic1_enabled: bool = setting(True, "use the level function first DFT harmonic magnitude of the profile (ours)")
+    harmonic1_alpha: float = _alpha("harmonic1")
+    harmonic1_sigma: float = _sigma("harmonic1", 0.025)
+    harmonic2_enabled: bool = setting(True, "use the level function second DFT harmonic magnitude of the profile "
+                                      "(ours)")
+    harmonic2_alpha: float = _alpha("harmonic2")
+    harmonic2_sigma: float = _sigma("harmonic2", 0.02)
+    low_quantile_enabled: bool = setting(True, "use the level function low quantile of the sorted profile (ours)")
+    low_quantile_level: float = setting(0.1, "level of low_quantile", low=0.0, high=1.0)
+    low_quantile_alpha: float = _alpha("low_quantile")
+    low_quantile_sigma: float = _sigma("low_quantile", 0.06)
+    high_quantile_enabled: bool = setting(True, "use the level function high quantile of the sorted profile (ours)")
+    high_quantile_level: float = setting(0.9, "level of high_quantile", low=0.0, high=1.0)
+    high_quantile_alpha: float = _alpha("high_quantile")
+    high_quantile_sigma: float = _sigma("high_quantile", 0.02)
+
+    min_candidates: int = setting(600, "best-ranked tiles added when fewer pass equation (4); 0: pure filter (ours)",
+                                  low=0, high=1_000_000)
+    max_candidates: int = setting(1000, "most candidate tiles correlated per scan (ours)", low=1, high=1_000_000)
+    rank_term_cap: float = setting(9.0, "cap of each level function's squared term in the candidate ranking (ours)",
+                                   low=0.0, low_open=True, high=_BIG)
+    window_size: float = setting(4.0, "side of the square search window around the last estimate; <= 0: whole map "
+                                 "(paper 4)", unit="m", low=-1.0, high=10_000.0)
+    global_candidates: int = setting(50, "best-ranked tiles outside the window scored with every windowed update; "
+                                     "0: hard window, as the paper", low=0, high=1_000_000)
+    global_switch_margin: float = setting(0.05, "a tile outside the window wins once its accumulated score "
+                                          "advantage exceeds this (ours)", low=0.0, high=1.0)
+
+    score_truncation: float = setting(0.1, "tau of the truncated squared profile difference (ours)", unit="intensity",
+                                      low=0.0, low_open=True, high=1.0)
+    shift_hypotheses: int = setting(3, "correlation optima rescored per candidate (ours)", low=1, high=64)
+    refine_candidates: int = setting(20, "best candidates refined below the tile size; 0: off (ours)",
+                                     low=0, high=10_000)
+    refine_iterations: int = setting(10, "Gauss-Newton iterations of the refinement", low=1, high=100)
+    refine_beams: int = setting(180, "live hits used by the refinement at most", low=1, high=100_000)
+    refine_truncation: float = setting(0.3, "refinement ignores endpoints farther than this from obstacles",
+                                       unit="m", low=0.0, low_open=True, high=10.0)
+
+    lost_score: float = setting(0.5, "best normalised score above which the estimate is LOST", low=0.0, high=1.0)
+    kidnap_score: float = setting(0.2, "best score in the window above which the whole map is searched",
+                                  low=0.0, high=1.0)
+    ambiguity_margin: float = setting(0.03, "a separate candidate this close to the best score makes the estimate "
+                                      "AMBIGUOUS", low=0.0, high=1.0)
+    ambiguity_distance: float = setting(1.0, "candidates farther apart than this are separate", unit="m",
+                                        low=0.0, low_open=True, high=1000.0)
+    ambiguity_angle: float = setting(0.5, "candidates turned more than this are separate", unit="rad", ros_unit="deg",
+                                     low=0.0, high=math.pi, ros_name="ambiguity_angle_deg")
+    min_valid_fraction: float = setting(0.3, "fraction of sensors that must receive a valid beam", low=0.0, high=1.0)
+
+    cache_dir: str = setting("", "learning cache directory; empty: $RLS_CACHE_DIR or ~/.cache/robot_localization_suite",
+                             read_only=True)
+    use_cache: bool = setting(True, "read and write the learning cache", read_only=True)
+    show_progress: bool = setting(True, "progress bar while learning")
+
+    def validate(self) -> None:
+        if not self.pq_low < self.pq_high:
+            raise SettingsError(f"PilSettings needs pq_low < pq_high, got {self.pq_low!r}, {self.pq_high!r}")
+        if self.harmonic2_enabled and self.sensor_count < 5:
+            raise SettingsError(f"PilSettings.harmonic2 needs at least 5 sensors, got {self.sensor_count!r}")
