@@ -2,25 +2,13 @@
 
 Every localizer that precomputes something from a map (IR's index, PIL's
 pseudo-images) writes one file per map + parameter combination into its own
-subdirectory of :func:`default_cache_dir`. Without a bound those files pile up
-for ever (an IR index is 120-400 MB), so after writing a new file a localizer
-calls :func:`prune_cache` on its subdirectory: the least recently used files
-are deleted until the subdirectory fits :func:`cache_budget_bytes`.
+subdirectory of :func:`default_cache_dir`. After writing a new file it calls
+:func:`prune_cache` on that subdirectory: the least recently used files
+(modification time, refreshed by :func:`mark_used` on every hit) are deleted
+until the subdirectory fits :func:`cache_budget_bytes`; the file just written
+is never deleted, and only names matching the given pattern are considered.
 
-Choices:
-
-* "Recently used" is the file's modification time. A writer sets it by
-  writing; a reader sets it with :func:`mark_used` on every cache hit. The
-  access time is not used: most file systems are mounted ``relatime`` or
-  ``noatime`` and do not keep it.
-* The budget is per subdirectory (``ir/``, ``pil/``): one localizer's files
-  never push out another's.
-* The file just written is never deleted, even when it alone exceeds the
-  budget (it is needed now; a warning says so).
-* Only names matching the given pattern are considered (``*.npz``), so a
-  half-written ``*.npz.tmp<pid>`` of a concurrent writer is left alone. A
-  concurrent reader whose file is deleted from under it finds it missing or
-  unreadable (a ``CacheError``) and rebuilds it.
+Notes (why modification time, per-directory budgets, concurrent writers): docs/ir.md, "Cache".
 """
 
 from __future__ import annotations

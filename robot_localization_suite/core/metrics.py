@@ -1,43 +1,17 @@
 """Benchmark metrics: localizer outputs against ground truth, as plain arrays.
 
-The definitions (also in README ``## Benchmark``):
-
-* An output is *correct* when ``|dxy| <= 0.5 m`` and ``|dtheta| <= 25 deg``,
-  *fine* when ``|dxy| <= 0.2 m`` and ``|dtheta| <= 0.1 rad``, against the
-  ground truth interpolated at the output's stamp (x, y and the unwrapped
-  heading linearly; never across a kidnapping, where the pose before the jump
-  holds until the jump's stamp). Outputs outside the ground truth's time span
-  (by more than one ground-truth period) have no truth and are left out.
-* A *fix* is an output that is correct and stays correct for the next
-  ``FIX_FOLLOWERS`` (3) outputs.
-* ``time_to_first_fix_s``: from the first input (scan or image) to the first fix.
-* A *kidnapping* is a ground-truth step of more than ``KIDNAP_JUMP_M`` (1 m)
-  that odometry does not show: the translation of the ground-truth step, seen
-  from its start pose, differs from the odometry step over the same interval
-  (interpolated at the same stamps) by more than 1 m. A bag without odometry
-  counts every ground-truth step over 1 m.
-* ``kidnap_recovery_s``: per kidnapping, from the jump (the stamp of the first
-  ground truth after it) to the first fix starting after it and before the
-  next kidnapping; null if none.
-* ``kidnap_recovery_updates``: the same recovery counted in outputs: the
-  outputs from the jump up to and including the first of the recovery fix
-  (1: the first update after the jump is already the fix).
-* ``kidnap_candidate_recovery_updates``: the same count where an output
-  counts as correct when its pose or one of its first ``CANDIDATE_K`` (10)
-  candidates is correct; for localizers that publish ranked candidates (PIL,
-  IR): how soon the truth is among what the method proposes, which for a
-  kidnapping into an ambiguous place (a twin room, a stretch of corridor) is
-  all any single scan can say (PIL paper, section 3.2).
-* ``correct_rate`` / ``fine_rate``: over outputs from the first fix on.
-* ``rmse_xy_m`` / ``rmse_theta_rad``: the tracking error, over the same
-  outputs, leaving out each kidnapping's recovery: from the jump to its
-  recovery fix, and at least ``KIDNAP_EXCLUSION_S`` (5 s); a kidnapping never
-  recovered leaves out everything up to the next one. How long a recovery
-  takes is ``kidnap_recovery_s``'s to say (a recovery of 20 s, with metres of
-  error, would otherwise swamp a tracking error of centimetres); a failed
-  recovery shows there as null and in ``correct_rate``.
+An output is *correct* within 0.5 m and 25 degrees of the ground truth
+interpolated at its stamp (never across a kidnapping), *fine* within 0.2 m and
+0.1 rad; a *fix* is a correct output followed by ``FIX_FOLLOWERS`` more. A
+*kidnapping* is a ground-truth step of more than ``KIDNAP_JUMP_M`` that
+odometry does not show. From these: time to first fix, kidnap recovery (in
+seconds, in outputs, and with the truth among the first ``CANDIDATE_K``
+candidates), correct and fine rates from the first fix on, the tracking RMSE
+leaving out each recovery, recall@k of global fixes, and IAL's containment.
 
 Everything here is numpy only; nothing knows about bags or ROS.
+
+Definitions in full: docs/benchmark.md (and README ``## Benchmark``).
 """
 
 from __future__ import annotations
@@ -162,7 +136,7 @@ def detect_kidnappings(
     *,
     jump_m: float = KIDNAP_JUMP_M,
 ) -> NDArray[np.int64]:
-    """Indices ``i`` of ground-truth steps ``i - 1 -> i`` that are kidnappings (see the module docstring)."""
+    """Indices ``i`` of ground-truth steps ``i - 1 -> i`` that are kidnappings (docs/benchmark.md)."""
     if len(ground_truth) < 2:
         return np.zeros(0, dtype=np.int64)
     previous, current = ground_truth.poses[:-1], ground_truth.poses[1:]
@@ -254,7 +228,7 @@ def evaluate_outputs(
     kidnap_indices: ArrayLike = (),
     candidates: ArrayLike | None = None,
 ) -> dict[str, Any]:
-    """The accuracy fields of ``summary.json`` for one run (see the module docstring).
+    """The accuracy fields of ``summary.json`` for one run (docs/benchmark.md).
 
     Returns ``correct``, ``fine`` (per-output booleans, for plots), ``position_error_m``,
     ``heading_error_rad`` (NaN without truth), and the scalar fields

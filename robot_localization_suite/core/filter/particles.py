@@ -1,24 +1,18 @@
 """Particle-set primitives for Monte Carlo localization: resampling, KLD sample size, clusters.
 
 * :func:`low_variance_resample`: Thrun, Burgard & Fox, *Probabilistic
-  Robotics*, table 4.4 (systematic resampling: one random offset, ``M``
-  evenly spaced pointers into the cumulative weights). O(N + M).
+  Robotics*, table 4.4 (systematic resampling). O(N + M).
 * :func:`kld_sample_limit` / :func:`kld_particle_count`: Fox, "Adapting the
   sample size in particle filters through KLD-sampling" (IJRR 2003), with
-  nav2_amcl's conventions (``pf.c pf_resample_limit``): the bound
-  ``n = (k - 1) / (2 pf_err) * (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) * pf_z)^3``
-  where ``pf_z`` is used directly as the normal quantile (nav2's default 0.99
-  is kept for compatibility, although the 99 % quantile would be 2.33), and
-  histogram bins of 0.5 m x 0.5 m x 10 degrees (nav2 ``pf_kdtree``). Samples
-  are drawn (independently, as nav2 does) until their count exceeds the bound
-  for the number ``k`` of occupied bins so far. One deviation: nav2 returns ``max_particles`` when a
-  single bin is occupied (``k == 1``), which makes a perfectly converged cloud
-  *grow* to the maximum; here ``k <= 1`` gives ``min_particles``.
-* :func:`cluster_particles`: nav2's clusters (``pf_kdtree_cluster``): occupied
-  bins that touch (26-neighbourhood) form one cluster. Unlike nav2, the
-  heading bins wrap around at +-pi, so a cluster at theta ~ pi is not split.
+  nav2_amcl's conventions (``pf.c pf_resample_limit``, ``pf_kdtree`` bins of
+  0.5 m x 0.5 m x 10 degrees), except that one occupied bin gives
+  ``min_particles`` (nav2: ``max_particles``).
+* :func:`cluster_particles`: nav2's clusters (``pf_kdtree_cluster``), heading
+  bins wrapping around at +-pi.
 * :func:`weighted_pose_statistics`: weighted mean (circular for theta) and the
   full 3 x 3 covariance with heading deviations wrapped around the mean.
+
+The bound, and where and why this departs from nav2: docs/mcl.md.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Compiled kernels of interval-analysis localization (see :mod:`.ial` for the method).
+"""Compiled kernels of interval-analysis localization (the method: :mod:`.localizer`, docs/ial.md).
 
 Boxes are float64 rows ``[x_lo, x_hi, y_lo, y_hi, theta_lo, theta_hi]`` [m, m, rad]
 with unwrapped headings (see :mod:`.interval`). Obstacle queries run on a

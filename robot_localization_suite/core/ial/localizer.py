@@ -2,156 +2,21 @@
 
 Guyonneau, Lagrange, Hardouin & Lucidarme, "Guaranteed interval analysis
 localization for mobile robots", *Advanced Robotics* 28(16), 2014
-(``../shared/seeds/004_0d88fe8e59c0c187.txt``).
+(``../shared/seeds/004_0d88fe8e59c0c187.txt``). Under stated bounds (range
+error ``+- range_error``, bounded odometry, at most ``max_outliers`` readings
+breaking the range bound) the true laser pose lies inside the union of the
+returned boxes, every time; an empty list means kidnapping and restarts from
+the whole map (section 3.2).
 
-The promise: under stated bounds (each range reading within ``+- range_error``
-of the distance to the obstacle it hit, each odometry component within its
-relative + absolute bound, at most ``max_outliers`` readings breaking the
-first bound), the true laser pose lies inside the union of the boxes this
-localizer returns, every time; when the bounds are violated the list may
-empty, which the method reads as a kidnapping and restarts from the whole map.
+Algorithm 1, per scan: interval prediction of each box by the bounded
+odometry step, forward-backward contraction of each box by every beam against
+the map (:mod:`.kernels`) with a relaxed (q-)intersection, and bisection down
+to ``min_box_width_*``. Additions, all sound: the laser stands in a free cell,
+no certain obstacle before a beam's shortest range, boxes merged into hulls
+before prediction.
 
-The method (Algorithm 1 of the paper), per scan:
-
-1. *Prediction* (line 4): each box ``[x] x [y] x [theta]`` is moved by the
-   interval evaluation of the motion equation, with the odometry step's
-   rotation-translation-rotation decomposition bounded by
-   :meth:`OdometryMotionModel.bounds` (relative + absolute bound per component).
-2. *Contraction* (line 5): each valid beam ``i`` with reading ``y_i`` gives
-   ``[y_i] = [y_i - eps, y_i + eps]`` and, by equation (6), the box ``[w_i]``
-   where it may end; "the beam ends on an obstacle" shrinks ``[w_i]`` to the
-   hull of the obstacle cells inside it and the distance constraint carries
-   that back to the pose (forward-backward; :func:`.ial_kernels.contract_box`).
-   A relaxed (q-)intersection keeps the poses consistent with at least
-   ``n - max_outliers`` beams (Kieffer, Jaulin, Walter & Meizel 2000, ref. [26]).
-3. *Bisection* (line 7): a box still larger than ``xi`` is cut in two equal halves.
-4. An empty list means kidnapping or lost: restart from the whole map (section 3.2).
-
-Choices where the paper is silent or ambiguous (written down as the house asks):
-
-* **Axes.** The paper writes ``x1 += sin(theta) dx``, ``x2 += cos(theta) dx``
-  (heading from the x2 axis). We use REP 103 (``x += cos``, ``y += sin``,
-  heading counter-clockwise from x), i.e. the paper with ``theta' = pi/2 - theta``.
-  The boxes bound the *laser* pose, as every core localizer does;
-  ``details["boxes"]`` are converted to the robot base frame with the laser
-  mount of the settings (interval arithmetic, outward), so that they are
-  comparable with ``/ground_truth`` and with ``pose`` after the adapter.
-* **Bisection loop.** Lines 8-9 push both halves to ``L_k``, which taken
-  literally bisects each box once per scan; the paper's results (a first
-  iteration of 21-45 s ending in centimetre boxes, Table 1; two clusters of
-  small boxes after the first scan, Fig. 11) need the halves to be contracted
-  and bisected again within the iteration. The halves therefore go back to
-  the working list (depth-first, ``pop_back``), SIVIA style; prediction is
-  applied only to the boxes of ``L_{k-1}``.
-* **Size and xi.** The paper's ``size`` is the volume. A volume test lets a
-  2 m x 1 mm sliver through unbisected, so ``size > xi`` is read per
-  dimension: a box is bisected while some width exceeds its threshold
-  (``min_box_width_xy`` for x and y, ``min_box_width_theta`` for theta), along
-  the dimension with the largest width / threshold (the "widest scaled" one).
-* **q-intersection.** The relaxed intersection of the per-beam boxes is
-  computed dimension by dimension (the ``(n - n_o)``-th smallest lower bound
-  and largest upper bound), the outer approximation codac's ``CtcQInter``
-  also uses: it contains every pose consistent with ``n - n_o`` beams.
-* **Theta contraction.** Besides ``[x]`` and ``[y]``, the backward step
-  contracts ``[theta]`` to the directions of ``[w_i] - [x, y]`` minus the beam
-  angle, and checks ``|[w_i] - [x, y]|`` against ``[y_i]``.
-* **Soundness of arithmetic.** Every interval result is widened outward by
-  1e-9 (metres or radians; :mod:`.interval` gives the error budget), cell
-  indices are padded outward before ``floor``, and float64 is used throughout.
-  Ranges arrive as float32 in ``sensor_msgs/LaserScan``: each reading is
-  widened by its float32 rounding (``2^-23`` relative) on top of ``eps``.
-* **Soundness of the map.** Unknown cells and everything off the map count
-  as obstacles. Beam ends may lie within ``map_margin`` [m] of an obstacle
-  cell (the obstacle set is dilated by that much): a SLAM map marks a cell
-  occupied when its centre is inside a wall, so a real wall surface can lie
-  up to a cell outside the marked cells; measured here (DESIGN.md), such maps
-  lost the truth in up to a third of trials without dilation and never with
-  one cell plus the map's error. Simulated bags cast rays on the very grid
-  given to the localizer, so ``map_margin = 0`` is already exact for them.
-* **Two constraints added to the paper's (both sound).** (a) The laser
-  stands in a cell the map marks free (within ``map_margin``): ``[x] x [y]``
-  is contracted to the hull of such cells. A map built from the robot's own
-  scans marks the laser's cell free (every beam starts there), and so does a
-  simulated map; for maps whose free space is not marked,
-  ``laser_in_free_cells = False`` accepts any cell not marked occupied. Without
-  it, poses in the unknown part of a SLAM map (Intel: 63 % of the cells,
-  fr101: 83 %) agree with every scan, since every beam ends on "an obstacle"
-  there. Real maps stay hard even so: from a free cell facing unknown space a
-  180-degree scan agrees with every reading, and one Intel scan leaves more
-  than a million boxes (sound; motion prunes them, ``max_boxes`` bounds the work).
-  (b) A beam meets no obstacle before its end: ``free_space_samples`` points
-  short of the shortest possible range (0.5, 1.5, 3.5, 7.5 ... cells back)
-  must not lie, for every pose of the box, in cells that are certainly
-  obstacles (occupied cells eroded by ``2 map_margin``; off-map and unknown
-  cells are never certain). The paper's constraint alone accepts any beam
-  ending anywhere inside a thick wall or off the map: on the office map a
-  single scan then left more than 20,000 boxes (a third of them at
-  positions inside walls, most of the rest in a pocket whose beams all end
-  in walls), and hulls of 4-6 degrees while tracking; with (a) and (b), 12
-  boxes (median over 20 poses) and hulls of 2-3 degrees (measured, below).
-* **Position domain.** The robot is on the map: positions are intersected
-  with the map's extent after prediction (otherwise a box off the map, where
-  every cell is an obstacle, would agree with any scan).
-* **Odometry.** :meth:`OdometryMotionModel.bounds` states the bound around
-  the *true* step's rotation-translation-rotation decomposition (the
-  simulator's bounded odometry draws each component so, once per odometry
-  message). Around the measured value ``m`` it inverts to
-  ``m +- (relative |m| + absolute) / (1 - relative)``
-  (:func:`odometry_step_bounds`); steps are applied one odometry message at
-  a time. When the true translation may be under 1 cm, the true
-  decomposition sets ``rot1 = 0`` whatever the direction of travel
-  (:func:`odometry_delta`), so that step moves the box by the translation
-  bound in any direction. With a laser mount, the boxes are predicted in the
-  base frame, which the odometry describes.
-* **Merging (an addition).** Boxes never merge in the paper, so a list kept
-  from scan to scan only grows when odometry spreads each leaf over more than
-  ``xi``. Before prediction, boxes are grouped greedily into hulls at most
-  ``merge_width_xy`` x ``merge_width_xy`` x ``merge_width_theta`` (a hull
-  contains its boxes, so the guarantee is kept); contraction and bisection
-  then re-pave each hull. Separate hypotheses stay separate.
-* **Restart.** On an empty list the same scan is processed again from the
-  whole map, so the update that detects a kidnapping already returns boxes
-  containing the new pose (status LOST, ``details["restarted"]``).
-* **Initial pose.** ``set_initial_pose`` starts from the box
-  ``pose +- initial_pose_sigmas * sigma`` (3 sigma by default, at least
-  ``initial_min_half_width_*``). A Gaussian has no bound: if the truth lies
-  outside, the list empties and the restart above takes over.
-* **Work limits.** Past ``max_boxes`` boxes or ``max_contractions``
-  contractions in one iteration, boxes are still contracted but no longer
-  bisected (coarser, never unsound); ``details["limited"]`` says so.
-* **Too few beams.** With fewer than ``max_outliers + 1`` valid readings the
-  boxes are predicted but not contracted, and ``details["warning"]`` says why.
-  Readings outside ``[range_min, range_max)``, NaN and inf are dropped first;
-  ``max_beams`` then picks readings evenly among the valid ones.
-
-Outputs: ``pose`` is the centre of the hull of the boxes, ``covariance`` that
-of a uniform distribution over the hull (``width^2 / 12`` per axis),
-``candidates`` the box centres ranked by consistent beams then by volume,
-``details["boxes"]`` a ``(K, 3, 2)`` array of ``[lo, hi]`` for x, y, theta
-(also ``box_count``, ``hull_width_x/y/theta``, ``valid_beams``,
-``contractions``, ``limited``, ``restarted``, ``warning``). While the boxes form
-several clusters (status AMBIGUOUS) the hull centre may lie between them; the
-covariance says so. With no box left (bounds broken even for the whole map)
-the pose is NaN and the status LOST; the next scan starts from the whole map.
-:meth:`IntervalLocalizer.global_fix` instead returns the best-ranked box centre.
-
-Interval library: compiled numba, not codac. codac 2.1.2 (PyPI) offers
-intervals, ``CtcInverse`` (forward-backward on an analytic function) and
-``CtcQInter``, but no contractor over a raster, so the obstacle hull must come
-from our summed-area table anyway, called from Python per box and beam. Measured
-with ``python -m robot_localization_suite.tools.ial_benchmark --codac`` (office
-map 400 x 400 cells, 36 beams, eps 5 cm, 5 outliers, 2 shared cores, median of
-20 poses, two runs): contracting one tracking-size box by every beam costs
-1.85-2.5 ms with codac (one ``CtcInverse`` per beam, built once per scan) and
-9 us with :func:`.ial_kernels.contract_box`, 200-270 times less; vectorised
-numpy over boxes would still pay per-box Python work for the hull queries and
-the depth-first bisection. With numba, the first global iteration took 56-87 ms
-(median; 30 ms to 1.7 s, the slowest hitting ``max_boxes``; the paper: 21-45 s
-on a 10 m x 4.7 m map) and a tracking iteration from a 0.5 m x 0.5 m x
-10 degree box 0.44-0.47 ms (the paper: 0.306 s), the truth inside the boxes in
-20 of 20 trials each. The kernels are serial: a numba parallel
-launch costs about 11 ms here (DESIGN.md), more than a tracking iteration,
-and a depth-first paving in one thread is deterministic.
+Notes (choices where the paper is silent, status, why numba not codac,
+measured figures): docs/ial.md.
 """
 
 from __future__ import annotations

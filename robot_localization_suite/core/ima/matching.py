@@ -2,80 +2,22 @@
 
 The image matching algorithm (IMA) cuts a new grey image into ``Ns`` column
 *slots*, slides each slot along a stored panorama with the normalized
-correlation coefficient (NCC), and looks for the position where the slots
-match in the right order and spacing:
+correlation coefficient (NCC, mapped to [0, 1] by equation A.4), and looks
+for the position where the slots match in the right order and spacing:
 
-* :func:`slot_values` - NCC of every slot at every panorama column, mapped to
-  [0, 1] by ``c* = (c + 1) / 2`` (appendix A, equation A.4). The panorama is
-  circular: a slot window that runs past the right edge continues on the left.
-* :func:`match_slots` - Code 2.1: ``MATCH_SLOT`` / ``MATCH_VAL``, the best slot
-  at each column and its value (ties keep the lower slot, as the strict ``>``).
-* :func:`best_matching` - Code 2.2 (the mask ``{1..Ns}`` at spacing ``Wslot``;
-  ``MAX`` normalised by ``Ns``, ``COL`` the first maximum) and, with
-  ``panorama_variant=True``, Code 2.3 (a slot over a black zone, value exactly
-  0.5, adds the mean of the previous slots).
-* :func:`build_panorama` - section 2.2: snapshots taken while turning on the
-  spot at imprecise angle steps are inserted one by one at the ``COL`` that
-  Code 2.3 returns; ``Wref = Wnew 2 pi / theta`` (equation 2.1); CLAHE option
-  (2.2.2).
-* :func:`heading_from_col` - section 2.3, equation 2.2.
-* :class:`PanoramaBank` - the place recognition of section 4.1.5: every
-  panorama compared with the image, and with digital zoom (section 2.4)
-  three times (image -> panorama, zoomed image -> panorama, image -> zoomed
-  panorama), the best of the three kept.
-* :class:`TopologicalMap` / :func:`load_topomap` - the map file of Figure 4.1
-  as YAML: node names, x, y, panorama files.
+* :func:`slot_values` (A.4), :func:`match_slots` (Code 2.1),
+  :func:`best_matching` (Code 2.2, and the panorama variant Code 2.3);
+* :func:`build_panorama` - section 2.2, equation 2.1, CLAHE option (2.2.2);
+* :func:`heading_from_col` - section 2.3, equation 2.2;
+* :class:`PanoramaBank` - the place recognition of section 4.1.5, with
+  digital zoom (section 2.4) as the best of three comparisons;
+* :class:`TopologicalMap` / :func:`load_topomap` - the map file of Figure 4.1.
 
-Choices where the thesis is silent or ambiguous (written down as the house rules ask):
+Beyond the thesis: NCC of all slots and panoramas as one matrix product
+(``ncc_backend="gemm"``), and images warped to equal angle per column
+(``cylindrical``).
 
-* **NCC computation.** NCC is equation A.1 exactly (OpenCV's
-  ``TM_CCOEFF_NORMED``, the thesis' ``cvMatchTemplate``). A slot is as tall as
-  the panorama, so the sliding is one-dimensional; the default backend
-  ``"gemm"`` computes it for all slots and all panoramas at once as one matrix
-  product of slot columns and panorama columns plus running window sums. It
-  equals ``cv2.matchTemplate`` to ~1e-6 (tested) and is ~30x faster here
-  (0.7 ms vs 22 ms for 15 panoramas x 8 slots); ``ncc_backend="opencv"``
-  calls ``cv2.matchTemplate`` itself.
-* **Flat regions.** NCC is undefined when the template or the window has no
-  variance; appendix A / footnote 3 say the thesis' NCC returns 0.5 (after
-  A.4) there. We return exactly 0.5 whenever either standard deviation is
-  below ``FLAT_STD`` grey levels (``cv2.matchTemplate`` itself returns 1 for
-  a flat template). A black or saturated camera image thus matches every
-  panorama with ``MATCH_VAL = 0.5`` everywhere and Code 2.2 gives ``0.5 / Ns``:
-  no destination.
-* **Code 2.3, first slot.** ``SUM / (n - 1)`` is undefined for ``n = 1``;
-  there ``SUM`` is 0, and we add 0.
-* **Slot width.** ``Wslot = floor(Wnew / Ns)``; when ``Wnew`` is not a
-  multiple of ``Ns`` the centred ``Ns * Wslot`` columns are used and the
-  heading accounts for the offset.
-* **Heading.** Equation 2.2 gives the clockwise angle ``alpha`` of the
-  matched region from the panorama's column 0, the left edge of the first
-  snapshot. The panorama stores the map heading ``heading_ref`` [rad, CCW] of
-  that first snapshot, so the camera heading is
-  ``heading_ref + theta/2 - 2 pi (COL + Wnew/2) / Wpano``, which for the
-  unzoomed panorama is ``heading_ref - alpha`` (``theta/2`` and the half image
-  cancel). Zoomed panoramas keep column 0 fixed, so the same formula holds
-  with their own width.
-* **Zoom.** The zoomed image is the camera image resized by ``rho_in`` and
-  centre-cropped back to the working size; the zoomed panorama is the
-  panorama resized by ``rho_in`` (360 degrees stay 360 degrees, wider) and
-  centre-cropped in height (section 4.1.5: the practical zoom-out).
-* **Cylindrical images.** Equations 2.1 and 2.2 take image columns as equal
-  angles, which a pinhole camera's are not: with a 60 degree lens, pasting
-  pinhole snapshots shrank every insertion step by ~5 % and the error added up
-  round the circle (measured: 3-4 % of the width, heading errors ~7 degrees
-  at the node). Every image is therefore remapped at the working scale to
-  equal angle per column (``cylindrical``, on by default; the horizontal field
-  of view comes from the topological map), as panorama stitchers do.
-* **Reconstruction, black zones.** During :func:`build_panorama` a slot
-  window that reaches even partly into the still black part of the mosaic is
-  "compared with a black zone" and gets exactly 0.5; otherwise half-black
-  windows rewarded placements that barely overlap the mosaic.
-* **CLAHE** (``cv2.createCLAHE``, clip limit 2) is applied at the working
-  scale with tiles a quarter of the image wide and high, to camera images and
-  to panoramas alike (panoramas with tiles of the same pixel size). Panorama
-  files are stored without CLAHE, so the ``clahe`` setting is free at
-  localization time.
+Notes (choices where the thesis is silent, measured figures): docs/ima.md.
 """
 
 from __future__ import annotations

@@ -1,101 +1,20 @@
 """Multi-hypothesis topological tracking on IMA place recognition (thesis 003, chapter 3, Code 3.1).
 
-Each update (section 3.8, Code 3.1, section 4.1.5):
+Each update (section 3.8, Code 3.1, section 4.1.5), once the odometry has
+moved ``min_translation`` or turned ``min_rotation``: the odometry guess
+``d0`` (the anchor plus the displacement since, its direction corrected by the
+last heading correction), the destinations IMA finds above ``eps_M`` plus
+``d0`` as the virtual destination, the action model ``P(d|o,a)`` of equations
+3.14-3.19, prediction and update of the activities (3.21-3.24), the winner
+``d*``, and the heading correction from equation 2.2 when
+``MATCH(d*) > eps_phi`` (3.7).
 
-1. The odometry displacement since the last reset, its direction corrected by
-   the heading offset of the last vision correction, is added to the last
-   winner ``o*`` (with ``odometry_reset="winner"``; see *Odometry reset*
-   below for the default); the node nearest that point is ``d0`` (3.2.1).
-2. IMA compares the image with every panorama (with zoom: best of three);
-   nodes with ``MATCH(d) > eps_M`` are destinations. If there are none, the
-   result is ``d0``, a *supposed* place: no reset, the origins stay.
-3. Otherwise ``d0`` joins as the *virtual* destination with ``MATCH = eps_M``
-   and the heading of the odometry.
-4. For every origin ``o`` and destination ``d``: ``Qa = Qo + displacement``,
-   ``phi_a = phi_o + rotation``, ``dl = |Qd - Qa|`` (3.14), ``dphi = phi_d -
-   phi_a`` (3.15); ``dl_max``, ``dphi_max`` over all pairs.
-5. Action model ``P(d|o,a) = g_l(dl) g_phi(dphi)`` (3.16-3.19), gaussians
-   with standard deviations ``dl_max`` and ``dphi_max``; prediction
-   ``P'(d) = sum_o P(d|o,a) Act(o)`` (3.22); update ``P''(d) = MATCH(d) P'(d)``
-   (3.21, 3.23); normalisation (3.24). ``d*`` has the highest activity.
-6. The odometry is "reset" (its pose recorded) and ``o* = d*``; if
-   ``MATCH(d*) > eps_phi`` the heading offset is set so that the corrected
-   odometry heading equals ``phi*`` from equation 2.2 (3.7). ``O <- D``.
-   The action of step 4 is always measured from this update; where ``d0`` is
-   measured from depends on ``odometry_reset`` (below).
+Departure from Code 3.1 (``odometry_reset``): by default the odometry guess
+is re-anchored at the winner only when vision names a new place, or the same
+place with a match that needed no zoom (the thesis' own proposal, 5.2.3 and
+6.1); ``"winner"`` keeps Code 3.1 exactly.
 
-The algorithm runs only after the odometry moved ``min_translation`` or turned
-``min_rotation`` since its last run (section 3.8, 0.3 m / 10 degrees in 5.2),
-and on the first image after a start or a reinitialisation.
-
-**Odometry reset (a departure from Code 3.1, setting ``odometry_reset``).**
-Code 3.1 resets the odometry to the winner's node at every update with
-destinations, so ``d0`` is always ``node(d*) + displacement since the last
-update``. Section 5.2.3 names this as the cause of most of its errors: moving
-from node 1 to node 2, an update half way that still recognises node 1 resets
-the odometry to node 1's coordinates, the odometry guess then stays at node 1
-and node 2 is missed; 5.2.4, 5.2.8 and 6.1 blame the same "rough reset" and
-5.2.3 proposes "a more accurate use of relative displacements ..., maybe
-including a distinction between observations with or without zoom, so to
-reduce excessive resetting of the odometry". The reset point (the *anchor*
-of ``d0``: a map position and the odometry pose recorded there) therefore
-moves to the winner's node only when that is new information:
-
-* ``"winner"``: at every update with destinations - Code 3.1 exactly.
-* ``"place"``: only when vision (not the virtual destination) recognises a
-  place other than the anchor's. The virtual destination is the odometry's
-  own guess rounded to a node, and resetting to it throws the rounding error
-  into the odometry (like a supposed place, footnote 21, it resets nothing);
-  recognising the anchor's place again says nothing about *where* in that
-  place's region (3.3: a place is an area, not a point) the robot is, while
-  the odometry since the anchor does.
-* ``"zoom"`` (default): as ``"place"``, and also re-anchored at the same
-  place when the best of IMA's three comparisons (section 4.1.5) is the plain
-  image against the plain panorama: the panorama was taken at the node, so a
-  match that needs no zoom puts the robot at the node, while a zoomed image
-  (robot short of the node along its view) or zoomed panorama (beyond it)
-  says it is off the node - the thesis' "distinction between observations
-  with or without zoom". With the zoom off (``rho_in = 1``) there is no such
-  distinction and ``"zoom"`` behaves as ``"place"``.
-
-The odometry since the anchor can then span several updates; its drift is
-bounded by how long the robot stays within one place without a plain match
-(the heading offset of the latest correction is applied to all of it).
-Measured with ``rls_bench`` on ``bags/lab_camera`` (``correct_place_rate``):
-``winner`` 0.897, ``place`` 0.960, ``zoom`` 0.968; the same scenario with
-six other noise seeds 0.895-0.921 -> 0.944-0.976 (``zoom``), and a path 0.3 m
-off the node centres (as in 5.2.3) 0.84-0.91 -> 0.92-0.95. The action model
-(3.14-3.19) and the heading correction are unchanged.
-
-Choices where the thesis is silent (written down as the house rules ask):
-
-* **Start.** Global localization (5.2.2): every node is an origin with
-  activity ``1/N``. Their heading is unknown, so ``dphi = 0`` for them; until
-  the first winner there is no ``o*`` and so no ``d0``: an image with no
-  destination then yields no estimate.
-* **Origin headings.** A normal destination keeps its IMA heading as its
-  heading when it becomes an origin; the virtual one keeps the corrected
-  odometry heading. ``dphi = 0`` for virtual origin -> virtual destination
-  (footnote 10) and for origins of unknown heading.
-* **Displacement.** ``Qa = Qo + R(delta) (p_now - p_reset)`` with ``delta``
-  the heading offset (map heading minus odometry heading): the thesis' "vector
-  connecting the two odometry positions, its direction corrected by the last
-  heading error" (4.1.5), computed with the shared SE(2) helpers.
-* **Degenerate spreads.** ``dl_max`` and ``dphi_max`` are floored at
-  ``min_sigma_l`` / ``min_sigma_phi`` (a single pair at distance 0 would
-  divide by zero); the floors cancel in the normalisation when all pairs tie.
-* **Initial pose** (``/initialpose``): one origin at the given pose with
-  activity 1 (its nearest node names it), ``o*`` there, the odometry reset and
-  the heading offset set to the given heading.
-* **No odometry.** The method needs it (3.2, 3.3): until the first odometry
-  message the odometry pose is taken as the origin, so a robot that never
-  sends odometry gets one update (its first image) and then none.
-* **Estimate.** ``pose`` is ``d*``'s node position with the corrected
-  odometry heading; the covariance is diagonal with the node spacing
-  (half the median nearest-node distance) as position sigma and 10 degrees
-  (thesis 5.1.4) as heading sigma once a heading correction happened, pi before.
-  Status: LOCALIZED when ``d*`` comes from vision, AMBIGUOUS when it is the
-  virtual destination or a supposed place, INITIALIZING before the first winner.
+Notes (the reset in full, choices, status, measured figures): docs/ima.md.
 """
 
 from __future__ import annotations

@@ -1,42 +1,22 @@
 """Precomputation and the two-level index of the IR initialiser (Aycard & Brouard, sections IV-A-2, IV-B-1, IV-B-2).
 
-What is stored, for every candidate position ``(x, y)`` of a regular grid over
-the free space of the map:
+For every candidate position ``(x, y)`` of a regular grid over the free space
+of the map this stores one 360-degree *ray fan* of byte-quantised ranges
+(rotated to serve every heading), the *patterns* seen from the position (runs
+of consecutive hits between no-return readings, section IV-B-1), and the
+paper's two-level index (section IV-B-2): *hit -> pattern* and
+*pattern -> position* (with frequencies), as sparse matrices.
 
-* one *ray fan*: the ranges the shared :class:`~.raycast.RayCaster` returns
-  along ``M`` rays spread evenly over 360 degrees, quantised to one byte
-  (``range_resolution`` steps; 255 = no return within ``max_range``). The
-  expected scan for any heading ``theta`` is this fan rotated by
-  ``theta / (2 pi / M)`` rays, so one cast per position serves every heading
-  (the paper ray-casts every ``(x, y, theta)``: 3.5 million scans);
-* the *patterns* seen from the position (runs of consecutive hits between
-  no-return readings, section IV-B-1), taken over the full 360-degree fan
-  instead of the paper's two views at theta and theta + 180 degrees: the fan
-  holds both views at once, and a pattern that straddles the edge of one view
-  stays whole;
-* the index *hit -> pattern* (a sparse ``terms x patterns`` matrix) and
-  *pattern -> position* (a sparse ``patterns x positions`` matrix whose
-  values are frequencies: how many times the pattern occurs at the position),
-  the paper's two-level index (section IV-B-2, figure 9 left). A pattern seen
-  before (same quantised ranges) is not added again; its frequency grows.
-
-A *hit* of the first level is what a live scan yields before its pose is
-known: ``(anchor side, offset, range bin)``, the quantised range of the beam
-``offset`` beams inside a pattern counted from the no-return reading that
-delimits it (``side`` 0: from its start, counter-clockwise; 1: from its end).
-It does not depend on the heading because a pattern's ends are fixed in the
-world. Only the first ``pattern_terms_per_end`` beams from each end are
-indexed: they are what a truncated live pattern (cut by the edge of a
-limited field of view) still shares with the stored one. A pattern with no
-delimiting no-return at all (a closed room within ``pattern_max_range``) has
-no anchor and is not indexed; ``split_at_jump`` optionally also delimits
-patterns at range discontinuities so that such places get anchors too.
+A first-level *hit* is what a live scan yields before its pose is known:
+``(anchor side, offset, range bin)``, the quantised range of the beam
+``offset`` beams inside a pattern, counted from the no-return reading that
+delimits it (``side`` 0: from its start; 1: from its end).
 
 Everything here is deterministic; the cache file is keyed by the map
-fingerprint and a hash of every setting that changes its content. The
-``ir/`` cache directory is kept within a size budget (``cache_budget_mb``,
-``$RLS_CACHE_BUDGET_MB``, 2 GB by default): after a new index is written the
-least recently used indexes are deleted (:func:`~.cache.prune_cache`).
+fingerprint and a hash of every setting that changes its content, and the
+``ir/`` cache directory is kept within a size budget (:mod:`..cache`).
+
+Notes (why a fan per position, which beams are indexed, the cache rules): docs/ir.md.
 """
 
 from __future__ import annotations

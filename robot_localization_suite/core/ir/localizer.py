@@ -2,108 +2,20 @@
 
 O. Aycard and C. Brouard, "A new tool to initialize global localization for a
 mobile robot" (seed 001). The scan the robot should perceive is precomputed
-at every position of a grid over the map; a live scan is turned into *hits*,
-an inverted index finds the positions (x, y) whose patterns share the most
-hits (step 1), an index built on the fly over every heading of those
-positions ranks the poses (x, y, theta) by the idf-weighted hits they share
-(step 2), and 100 particles drawn from the ranked poses are tracked with the
-odometry motion model and an end-point sensor model, resampled at every
-update (sections IV-C, IV-D).
+at every position of a grid over the map (section IV-A-2, :mod:`.index`); a
+live scan is turned into hits, an inverted index finds the positions (x, y)
+whose patterns share the most hits (step 1, IV-B-3), and the poses
+(x, y, theta) of those positions are ranked by the idf-weighted hits they
+share (step 2, IV-B-4, :mod:`.query`). 100 particles drawn from the ranked
+poses are tracked with the odometry motion model and an end-point sensor
+model (sections IV-C, IV-D). This module holds the settings and
+:class:`IRLocalizer` (``global_fix`` and tracking).
 
-Modules: ``ir_index.py`` (precomputation, patterns, the two-level index, the
-cache), ``ir_query.py`` (steps 1 and 2, refinement), this one (settings,
-:class:`IRLocalizer`: ``global_fix`` and tracking).
+Beyond the paper, each a switch: range jumps also end a pattern, refinement
+and duplicate suppression of the ranked poses, a coarse fallback for scans
+with no delimited pattern, and a periodic global check while tracking.
 
-Interpretation of the paper (the choices it leaves open, written down)
------------------------------------------------------------------------
-* **Reading classes.** A reading is a *hit* when it returns within
-  ``max_range``, a *no-return* otherwise (``inf``, at/above the sensor's
-  ``range_max``, or beyond the model's ``max_range``), *invalid* when NaN,
-  negative or below ``range_min``. Invalid readings are skipped: they carry
-  no hit and neither cut nor anchor a pattern.
-* **Pattern** (IV-B-1): a run of consecutive hits between two no-return
-  readings (section IV-B-1, figure 8); readings beyond ``pattern_max_range``
-  (5.5 m, the paper's laser range) count as no-returns for this purpose.
-  Real scanners here reach 30-80 m, so indoors a whole 180-degree scan is
-  often one run with no no-return at all, which the paper's definition cannot
-  place (15 % of the Intel scans). ``split_at_jump`` (default 0.5 m) also
-  cuts runs where consecutive ranges differ by more than that: a range
-  discontinuity is as much a fixed point of the world as the edge of an empty
-  area. ``split_at_jump = 0`` is the paper's definition. Runs shorter than
-  ``min_pattern_beams`` are dropped.
-* **First-level hit** (what the two-level index is keyed by; it must be
-  computable from a live scan before its pose is known): ``(side, k, range
-  bin)``, the quantised range of the beam ``k`` beams inside a pattern,
-  counted from its delimiter at the start (``side`` 0) or at the end (1),
-  for ``k < pattern_terms_per_end``. It is invariant to the heading. The end
-  of a live pattern cut by the edge of a limited field of view is no
-  delimiter; only its delimited end yields hits.
-* **Positions and headings** (IV-A-2): every free cell centre of a 5 cm grid
-  at least ``min_clearance`` from obstacles and unknown cells; one 360-degree
-  fan per position (1-degree rays by default, quantised to bytes at 5 cm),
-  rotated to each 5-degree heading instead of a cast per (x, y, theta).
-  Patterns are taken on the full 360-degree fan, which contains the paper's
-  two views at theta and theta + 180 degrees.
-* **Step 1** (IV-B-3): for each live pattern, stored patterns are scored by
-  the number of common hits (a live hit also matches the neighbouring range
-  bins with ``soft_bin_weight``), the ``patterns_per_live_pattern`` best are
-  normalised by the best score, and every position sums the normalised
-  scores of its patterns times their frequency there; the
-  ``step1_positions`` best positions go on.
-* **Step 2** (IV-B-4): for every heading of those positions the expected
-  scan is the rotated fan; a *second-level hit* is ``(beam index, range
-  bin)`` of the live scan (a no-return is also a hit of its own bin when
-  ``no_return_terms``); a pose holds it when its expected reading for that
-  beam is within ``step2_tolerance_bins`` bins. The weight of a hit is the
-  paper's idf, the number of indexed poses divided by the number of poses
-  holding it (``idf_log``: its logarithm, the usual idf of information
-  retrieval); a pose's score is the sum of the weights of the hits it holds
-  (``use_idf = False``: plain counting, the paper's Table II ablation).
-* **Beyond the paper** (the issue asks for a better list; each is a switch):
-  the ``refine_candidates`` best poses of step 2 are aligned to the map by a
-  few Gauss-Newton steps on the distance field and re-ranked by their mean
-  end-point likelihood; poses within ``nms_distance`` / ``nms_angle`` of a
-  better one are dropped so that the list holds distinct hypotheses.
-  ``refine_candidates = 0`` and ``nms_distance = 0`` give the paper's list.
-  A scan that has hits but no delimited pattern (a closed room seen whole)
-  cannot be placed by step 1; step 2 then runs over a coarse lattice of about
-  ``fallback_positions`` positions and the refinement pulls the best poses
-  onto the map (``details["fallback"]`` says so; 0 = no candidates, as the
-  paper). A scan with no hit at all has no candidates and ``details["reason"]``.
-* **Tracking** (IV-C, IV-D): ``particle_count`` particles are drawn from the
-  ranked candidates of the initialisation with probability 1 / rank (the
-  paper takes "the 100 positions found"; one particle per hypothesis lost the
-  right one to motion noise on the test floor whenever it was not alone at
-  the top), copies spread over half a grid cell and half a heading step. An
-  update happens after ``update_min_d`` metres or ``update_min_a`` radians of
-  odometry (the paper's 1 m / 20 degrees): the shared odometry motion model
-  moves the particles (the paper's velocity model needs velocities the bags
-  do not carry), the end-point model scores each particle by the fraction of
-  its hit end-points (at most ``max_beams``) that fall on occupied cells
-  (within ``endpoint_tolerance``; 0 = the cell itself, as the paper), weights
-  are that score to the power ``score_exponent`` (1 = the paper's vote; 4 by
-  default, see :class:`IRSettings`), and the particles are resampled
-  (low-variance) at every update. Between updates the particles follow
-  odometry without noise, so every scan gets an estimate.
-* **LOST**: when the best particle's end-point score stays below
-  ``lost_score_threshold``, or below ``lost_score_ratio`` times its running
-  average over the good updates, for ``lost_update_count`` updates in a row,
-  the localizer initialises again from the current scan by itself.
-* **Beyond the paper, tracking**: a place that looks like where the robot
-  was (a twin room after a kidnapping) keeps the end-point scores high, so
-  the LOST rule never fires. Every ``global_check_updates`` updates the scan
-  is also fixed globally; when the fix's best pose, refined and scored as
-  the tracked pose is, fits the map better by ``global_check_margin`` and is
-  elsewhere, the filter restarts from the fix (``initialized_because`` =
-  ``"better global fix"``).
-* **Outputs**: after an initialisation the candidates are the ranked poses
-  (best first) and the pose is the best of them (moved by odometry until the
-  first update); afterwards the candidates are the particles and the pose is
-  the weighted mean of the best-supported cluster (0.5 m, 25 degrees).
-* **Bad input**: ``global_fix`` returns no candidates and
-  ``details["reason"]`` for a scan with no valid reading or no hit;
-  ``on_scan`` raises :class:`~.errors.ScanError` with that reason (the
-  adapter logs it, throttled, and skips the scan) and keeps its state.
+Notes (the interpretation of the paper, status, measured figures): docs/ir.md.
 """
 
 from __future__ import annotations
@@ -376,7 +288,7 @@ class IRLocalizer:
     def _rerank(
         self, live: Any, poses: NDArray[np.float64], scores: NDArray[np.float64]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Refinement and duplicate suppression of the step-2 ranking (beyond the paper; see the docstring)."""
+        """Refinement and duplicate suppression of the step-2 ranking (beyond the paper; docs/ir.md)."""
         s = self.settings
         count = min(s.refine_candidates, len(poses))
         if count > 0 and self._field is not None and live.hit_mask.any():
@@ -456,7 +368,7 @@ class IRLocalizer:
         return estimate
 
     def _global_check(self, scan: Scan, estimate: Estimate) -> Estimate:
-        """Restart from a global fix that fits the map clearly better than the tracked pose (see the docstring)."""
+        """Restart from a global fix that fits the map clearly better than the tracked pose (docs/ir.md, "Beyond the paper")."""
         s = self.settings
         self._updates_since_check = 0
         fix = self.global_fix(scan)

@@ -1,9 +1,9 @@
 """Queries of the IR initialiser: the live scan's hits, step 1 (positions), step 2 (poses), refinement.
 
 Aycard & Brouard, sections IV-B-3 and IV-B-4; the choices are written in
-``core/ir.py``'s module docstring. Everything here is vectorised (scipy.sparse
-products for step 1, one ``(positions x headings x beams)`` comparison for
-step 2, batched Gauss-Newton for the refinement).
+docs/ir.md. Everything here is vectorised (scipy.sparse products for step 1,
+one ``(positions x headings x beams)`` comparison for step 2, batched
+Gauss-Newton for the refinement).
 """
 
 from __future__ import annotations

@@ -1,153 +1,20 @@
-"""Monte Carlo localization at the level of nav2_amcl.
+"""Monte Carlo localization at the level of nav2_amcl (``mcl_baseline``).
 
-The filter is the one of nav2_amcl (itself Player's ``amcl``) and of the
-seeds' baselines (004 section 5.1, Algorithm 2; 001 section IV-C/D):
+Adaptive (KLD-sampling) Augmented MCL as nav2_amcl (Player's ``amcl``) and the
+seeds' baselines run it (004 section 5.1, Algorithm 2; 001 sections IV-C/D;
+Thrun, Burgard & Fox, *Probabilistic Robotics* table 8.3): particles over the
+laser pose, prediction by the shared odometry motion model once the robot has
+moved ``update_min_d`` or turned ``update_min_a``, correction by the
+likelihood field or the beam model of :mod:`.sensor_models`, KLD-sized
+low-variance resampling (:mod:`..filter.particles`) with Augmented-MCL
+injection, and the estimate from the heaviest particle cluster.
 
-* particles over the *laser* pose (x, y, theta) in the map; the adapter turns
-  it into the base pose (DESIGN.md: core localizers estimate the laser pose);
-* prediction by the shared :class:`OdometryMotionModel` (nav2's differential
-  model, or its omnidirectional one), applied only once the odometry has moved
-  by ``update_min_d`` [m] or turned by ``update_min_a`` [rad] since the last
-  filter update (Euclidean translation and absolute rotation; nav2 compares
-  each axis separately), or when an update is forced (first scan after an
-  initialisation, ``request_nomotion_update``);
-* correction by the likelihood-field model (default) or the beam model of
-  :mod:`.sensor_models`, on at most ``max_beams`` beams;
-* KLD-sampling of the particle count (``min_particles``..``max_particles``,
-  ``pf_err``, ``pf_z``) and low-variance resampling every
-  ``resample_interval`` updates (:mod:`.mcl_particles`), selectively: see
-  "Selective resampling";
-* Augmented MCL (Thrun et al., *Probabilistic Robotics* table 8.3):
-  short- and long-term averages ``w_fast``, ``w_slow`` of the measurement fit
-  (``recovery_alpha_fast``, ``recovery_alpha_slow``); at each resampling a
-  fraction ``max(0, 1 - w_fast / w_slow)`` of the new particles is drawn
-  over free space (uniformly as in nav2, or, by default, the best-fitting of
-  many uniform draws: see "Recovery sampling");
-* the estimate is the weighted mean of the heaviest particle cluster (nav2's
-  ``getMaxWeightHyps``), with that cluster's covariance.
+Departures from nav2, each measured: a tempered log-likelihood weight with
+adaptive tempering, a posterior-weighted recovery signal, measurement-guided
+recovery sampling, selective resampling, alphas 0.02 and 50,000 particles for
+a global start.
 
-Choices where nav2 or the papers leave room, and why:
-
-Particle weight. nav2 scores a particle by ``1 + sum_b p_b^3``, which hardly
-separates a good pose from a bad one (DESIGN.md, measured). Here the weight is
-a tempered product of the per-beam likelihoods,
-``log w = min(1, effective_beams / B) * sum_b log p_b`` over the ``B`` beams
-used. Each ``p_b`` is bounded below by the ``z_rand / max_range`` component,
-which is the per-beam cap: one outlier costs at most
-``log(z_hit + z_rand/max_range) - log(z_rand/max_range)`` nats, never
-``-inf``. The tempering exponent accounts for the correlation of neighbouring
-beams (and the map's own errors): without it, 60 beams make the posterior so
-peaked that the filter over-commits; ``effective_beams`` is the number of
-independent beams the scan is worth. It also makes the sharpness independent
-of how many beams survived the validity checks.
-
-Adaptive tempering. When one update would leave fewer than
-``min_effective_fraction * N`` effective particles (``1 / sum w^2``), its
-exponent is lowered (bisection) until that many remain. This only happens when
-the cloud is spread over poses of very different fit (a global start, an
-injection after a kidnapping): without it the first scan from a uniform cloud
-picks a handful of particles, usually wrong ones, and the filter commits to
-them; with it several hypotheses survive until motion separates them
-(tempered likelihoods against weight degeneracy, as in SMC samplers). While
-tracking, the effective sample size stays far above the floor and the weight
-is the plain tempered product.
-
-Beams. Valid readings are selected first (``Scan.hit_mask`` plus
-``laser_min_range`` / ``laser_max_range``, and for the beam model the
-no-returns), then ``max_beams`` of them are taken evenly spaced with
-``Scan.subsample``: a scan with invalid readings still contributes
-``max_beams`` beams when it has that many valid ones (nav2 subsamples first
-and then drops the invalid ones). A scan with no usable beam is skipped
-(``None``). A laser pose outside the map or inside an occupied cell gets the
-lowest possible score (every beam at the floor): the robot cannot be inside a
-wall, which nav2 does not exploit.
-
-Recovery signal. Augmented MCL averages the measurement likelihood over the
-particles. With a sharp log-likelihood, the raw average mixes scales wildly,
-and with nav2's averaging the freshly injected random particles drag the
-average down, which injects more random particles (nav2 therefore resets
-``w_slow = w_fast = 0`` after each injection, which stops recovery after one
-round). Here the fit of a scan is the geometric-mean per-beam likelihood
-``exp(mean_b log p_b)`` of each particle averaged with the *posterior*
-weights: it is how well the particles that explain the scan explain it, it is
-independent of the beam count, and random particles with low likelihood do
-not lower it. Injection therefore continues while the fit stays below its
-long-term average, and stops as soon as a particle near the true pose
-explains the scan again; there is no reset.
-``w_slow`` and ``w_fast`` are exponential averages with Adam's bias
-correction (running means over the first ``1/alpha`` updates) rather than
-nav2's start at the first value: with ``recovery_alpha_slow = 0.001`` the
-poor fit of an unconverged start would otherwise remain the reference for a
-thousand updates and hide a later collapse (measured: the twin-office
-kidnapping of ``office_kidnap`` went unnoticed for 20 s).
-
-Recovery sampling. ``recovery_sampling: uniform`` draws the injected
-particles uniformly over free space (Augmented MCL, nav2). The default,
-``measurement``, draws ``recovery_candidates`` times as many uniform poses
-(at most ``max_particles``), scores them against the scan of the update and
-keeps the best-fitting ones: the sensor-resetting idea (Lenser & Veloso 2000)
-and the dual proposal of Mixture MCL (Thrun, Fox, Burgard & Dellaert, "Robust
-Monte Carlo localization", AI 2001, the seeds' reference [13] of 004). A
-uniform particle must land within a few centimetres and degrees of the true
-pose to beat a converged wrong cluster; the best of ten draws lands there ten
-times as often. Measured on the simulated kidnap bags (3 seeds): office
-kidnappings recovered in 18-20 s / 2-3 s versus 19-26 s / 2-3 s, and every
-kidnapping of the corridor in global mode within 3.5 s.
-
-Injection dead band. While tracking well, ``w_fast`` wanders a few percent
-around ``w_slow``, so Thrun's formula injects a percent or two of random
-particles about half of the time; each lands in its own KLD bin and would keep
-the cloud near ``max_particles`` for nothing. Fractions below
-``recovery_min_injection`` are therefore ignored. When the filter is lost the
-fraction is large, and the random draws enter the KLD count as in nav2 (they
-occupy many bins), so the cloud grows towards ``max_particles`` exactly when
-coverage is needed.
-
-Selective resampling. nav2 resamples at every update. Each resampling
-copies the heaviest particles and drops the rest, so a converged cloud loses
-its diversity even when the weights hardly differ (sample impoverishment);
-after a recovery the cloud then sits 0.1 m off for seconds, moved only by the
-motion noise. Here, as in Doucet et al. and GMapping (Grisetti, Stachniss &
-Burgard 2007), the filter resamples only when the effective sample size
-``1 / sum w^2`` falls below ``resample_effective_fraction * N`` (0.5), or
-when Augmented MCL has particles to inject; otherwise the weights carry over
-to the next update. Measured over filter seeds 0-2 (``rls_bench --mode
-tracking``): tracking RMSE on corridor_kidnap 0.055 / 0.039 / 0.030 m with
-1.0 (nav2) and 0.032 / 0.021 / 0.024 m with 0.5; office and floor within
-0.005 m; the real logs stay at 100 % correct in both modes. (Raising
-``alpha3`` to 0.05 instead gave similar simulated figures but 98.7 % on
-orebro, whose scans are up to 3 m apart.)
-
-Clusters. Particles holding at least ``cluster_weight_mass`` of the weight are
-clustered (the nearly weightless rest would bridge separate hypotheses into
-one cluster, most visibly during a global start), with nav2's bins and
-26-neighbourhood, heading bins wrapping around.
-
-Status. LOCALIZED when the heaviest cluster holds at least half the weight,
-the weights are not degenerate (effective sample size at least
-``localized_min_effective_particles``), its position standard deviation (largest axis) is at most
-``localized_max_std_xy`` and its heading standard deviation at most
-``localized_max_std_yaw``, and the fit is not collapsing
-(``w_fast >= lost_fit_ratio * w_slow``); otherwise AMBIGUOUS when a second
-cluster holds at least ``ambiguous_cluster_weight``, LOST when the filter had
-been localized since the last initialisation, else INITIALIZING.
-
-Cost. The likelihood lookup is a numba kernel (one table read per beam); the
-rest is numpy without BLAS calls (OpenBLAS thread start-up costs milliseconds
-on a busy 2-core machine). Clusters are formed from the particles heavier than
-``(1 - cluster_weight_mass) / N``, which hold at least that share of the
-weight, so no sort of the whole cloud is needed.
-
-Output. ``on_scan`` returns an estimate only when the filter updated (nav2
-publishes ``amcl_pose`` only then), ``None`` otherwise. Candidates are the
-particles of the update, heaviest first, at most ``max_reported_particles``.
-
-Initialisation. Without an initial pose the cloud is uniform over free space
-with ``max_particles`` particles (nav2 ``pf_init_model``); ``set_initial_pose``
-draws ``max_particles`` from a Gaussian (covariance diagonal floored at
-``(2 cm)^2`` and ``(0.01 rad)^2`` so a zero covariance still spans a few KLD
-bins). ``set_initial_pose`` parameter poses use ROS 1 amcl's initial
-covariance (0.5 m, pi/12 rad standard deviations), since nav2 passes a zero one.
+Notes (choices, departures, status, measured figures): docs/mcl.md.
 """
 
 from __future__ import annotations
@@ -497,7 +364,7 @@ class MonteCarloLocalizer:
         self.log_weights = self.log_weights + temper * log_likelihood
         weights = normalize_log_weights(self.log_weights)
 
-        # Augmented MCL: posterior-weighted geometric-mean per-beam likelihood (module docstring).
+        # Augmented MCL: posterior-weighted geometric-mean per-beam likelihood (docs/mcl.md).
         fit = float((weights * np.exp(log_likelihood / beam_count)).sum())
         self._fit_slow.update(fit)
         self._fit_fast.update(fit)
@@ -507,7 +374,7 @@ class MonteCarloLocalizer:
         estimate = self._estimate(stamp, weights, fit, beam_count, effective)
 
         self._updates_since_resample += 1
-        # Selective resampling (module docstring): only when the weights have degenerated, or
+        # Selective resampling (docs/mcl.md): only when the weights have degenerated, or
         # when Augmented MCL wants to inject particles.
         degenerate = (s.resample_effective_fraction >= 1.0
                       or effective < s.resample_effective_fraction * len(weights))

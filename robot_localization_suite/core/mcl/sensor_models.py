@@ -1,33 +1,20 @@
 """Laser sensor models for particle filters: the likelihood field and the beam model.
 
-Both score many poses against one scan and return, for each pose, the *sum
-over beams of the log-likelihood* of the readings, so that callers choose how
-to combine beams (product, tempered product) and can compare scans with
-different numbers of valid beams through the per-beam mean.
+Both score many poses against one scan and return, per pose, the *sum over
+beams of the log-likelihood* of the readings, so that callers choose how to
+combine beams and compare scans through the per-beam mean.
 
 Likelihood field (Thrun, Burgard & Fox, *Probabilistic Robotics*, table 6.3;
-nav2_amcl ``LikelihoodFieldModel``): a reading that ends at distance ``d``
-from the nearest obstacle has likelihood
-
-    p = z_hit * exp(-d^2 / (2 sigma_hit^2)) + z_rand / max_range,
-
-with ``d`` capped at ``max_distance`` (nav2 ``laser_likelihood_max_dist``).
-As in nav2 the Gaussian is not normalised, so ``z_hit`` is the peak value and
-``z_hit`` / ``z_rand`` keep nav2's meaning. ``log p`` is precomputed per map
-cell from :meth:`GridMap.distance_field`, so a reading costs one table lookup
-(nearest cell). Endpoints off the map score as ``d = max_distance``. Only hits
-are scored; no-returns carry no information in this model (nav2 skips them too).
+nav2_amcl ``LikelihoodFieldModel``): ``p = z_hit * exp(-d^2 / (2 sigma_hit^2))
++ z_rand / max_range`` for a reading ending ``d`` from the nearest obstacle
+(``d`` capped at ``max_distance``; unnormalised, as nav2), ``log p``
+precomputed per map cell. Only hits are scored.
 
 Beam model (*Probabilistic Robotics* table 6.1; nav2 ``BeamModel``): the
-expected range ``z*`` comes from the shared :class:`RayCaster` (no hit within
-range means ``z* = max_range``), and a reading ``z`` has likelihood
+expected range from the shared :class:`RayCaster`, nav2's unnormalised
+mixture of hit, short, max and random components; no-returns are scored.
 
-    p = z_hit * exp(-(z - z*)^2 / (2 sigma_hit^2))
-      + z_short * lambda_short * exp(-lambda_short z)   if z < z*
-      + z_max                                          if z is a no-return
-      + z_rand / max_range                             if z is a hit,
-
-nav2's unnormalised form. No-returns are scored (as ``z = max_range``).
+Formulas and notes: docs/mcl.md.
 """
 
 from __future__ import annotations
@@ -117,7 +104,7 @@ def field_log_likelihood(
 
 
 class LikelihoodFieldModel:
-    """Likelihood-field laser model over one map (see the module docstring).
+    """Likelihood-field laser model over one map (see the module docstring and docs/mcl.md).
 
     Args:
         grid_map: the map; obstacles are its occupied cells.
@@ -188,7 +175,7 @@ class LikelihoodFieldModel:
 
 
 class BeamModel:
-    """Beam (ray-casting) laser model over one map (see the module docstring).
+    """Beam (ray-casting) laser model over one map (see the module docstring and docs/mcl.md).
 
     Args:
         grid_map: the map.

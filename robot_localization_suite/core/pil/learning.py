@@ -1,40 +1,18 @@
 """PIL off-line learning (Lambert et al. 2020, section 2.2), its tile grid and its on-disk cache.
 
-The map is covered by a grid of square tiles of side ``r`` (the paper's
-resolution, 20 cm by default): ``L_max`` lines along y and ``C_max`` columns
-along x. A tile is *valid* when its centre falls in a free cell of the map
-(section 2.2: invalid if "outside of the considered environment or inside an
-obstacle"; unknown cells count as outside). A simulated robot at the centre of
-every valid tile, heading ``theta = 0``, measures the range ``D_s(L, C, j)``
-along ``angle_count`` evenly spaced directions ``j * 2 pi / angle_count`` with
-the shared :class:`~robot_localization_suite.core.raycast.RayCaster`; nothing
-within the range ``R`` reads as ``R``. Intensities are equation (2),
-``I(L, C, j) = 1 - D_s / R``.
-
-Choices the paper leaves open, written down:
-
-* The transform ``M`` of equation (1) maps world ``(x, y)`` to continuous
-  image coordinates ``(L, C)`` with tile centres on integers:
-  ``L = (y - y0) / r - 1/2``, ``C = (x - x0) / r - 1/2`` where ``(x0, y0)`` is
-  the map origin; line ``L`` grows with y, as the rows of an OccupancyGrid.
-  The tile of a point is ``floor(M p + 1/2)``; equation (5) is ``M^-1``.
-* The learned directions are *finer* than the ``N_s`` sensors (by the
-  settings' angular upsampling, 4 by default): the live scan meets the map at
-  any heading, not only at multiples of the sensor spacing, and a 4x finer
-  learned profile lets the correlation of section 2.5 find theta to a quarter
-  of a sensor step (measured on a 30 m x 11 m floor: DESIGN.md).
-* The full circle is learned even for a limited field of view: the heading
-  sheets of a 180 degree scanner are sectors of the same profiles.
-* Ranges are stored as ``uint16`` millimetres; the in-memory intensities are
-  always derived from that quantised copy, so that a cache reload is
-  bit-identical to a fresh learning.
+The map is covered by a grid of square tiles of side ``r``; a tile is valid
+when its centre falls in a free cell. A simulated robot at the centre of every
+valid tile, heading 0, measures the range along ``angle_count`` evenly spaced
+directions with the shared :class:`~robot_localization_suite.core.raycast.RayCaster`
+(finer than the ``N_s`` sensors, over the full circle); intensities are
+equation (2), ``I = 1 - D_s / R``, derived from ranges stored as ``uint16``
+millimetres. The transform ``M`` of equation (1) puts tile centres on integers.
 
 Cache: ``$RLS_CACHE_DIR`` (or ``~/.cache/robot_localization_suite``)
-``/pil/pil_<map fingerprint>_<parameter hash>.npz``, written atomically. A
-file that cannot be read, or whose stored key or shapes do not match, is
-reported with a warning and rebuilt. The ``pil/`` directory is kept within
-the cache budget (:mod:`.cache`: ``$RLS_CACHE_BUDGET_MB``, default 2 GB) by
-deleting the least recently used files after each write.
+``/pil/pil_<map fingerprint>_<parameter hash>.npz``, written atomically,
+rebuilt when unreadable, kept within the budget of :mod:`..cache`.
+
+Notes (the choices the paper leaves open): docs/pil.md.
 """
 
 from __future__ import annotations

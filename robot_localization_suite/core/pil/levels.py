@@ -2,29 +2,19 @@
 
 A level function maps a range profile (intensities ``I = 1 - D / R`` around the
 robot, section 2.2 equation 2) to one number that does not depend on the
-robot's heading. For a 360 degree profile sampled at evenly spaced angles, a
-change of heading by a multiple of the angular step is a *circular shift* of
-the profile, so each function here is provably invariant to circular shifts:
+robot's heading: for a 360 degree profile a change of heading is a circular
+shift, and each function here is invariant to circular shifts.
 
-* ``energy`` (paper, ``I_1``): the mean of the profile. A sum is invariant to
-  any permutation of its terms.
-* ``pq`` (paper, ``I_2``): the fraction of samples with ``p <= I <= q``. A
-  count is invariant to any permutation.
-* ``harmonic1`` / ``harmonic2`` (ours, the paper's section 5 asks for more
-  functions): ``|F_m| / n``, the magnitude of the m-th DFT coefficient. A
-  circular shift by ``s`` multiplies ``F_m`` by ``exp(-2 pi i m s / n)``,
-  whose modulus is 1 (the DFT shift theorem). ``harmonic1`` measures how far
-  the robot is from the middle of its surroundings, ``harmonic2`` how
-  elongated they are (a corridor).
-* ``low_quantile`` / ``high_quantile`` (ours): quantiles of the sorted profile
-  (by default the 10th and 90th percentiles: a robust "nearest wall" and
-  "most open direction"). Sorting removes any permutation.
+* ``energy`` (paper, ``I_1``): the mean of the profile.
+* ``pq`` (paper, ``I_2``): the fraction of samples with ``p <= I <= q``.
+* ``harmonic1`` / ``harmonic2`` (ours): ``|F_m| / n``, the magnitude of the m-th
+  DFT coefficient (the DFT shift theorem).
+* ``low_quantile`` / ``high_quantile`` (ours): quantiles of the sorted profile.
 
-Every function takes profiles ``(..., n)`` and returns ``(...)`` so that the
-learned pseudo-images of all tiles and the live scan go through the same code.
-Normalising by ``n`` makes a profile sampled at 4x finer angles (the learned
-side) comparable with the ``N_s`` sensors of the live scan: each value then
-estimates the same continuous quantity of the surroundings.
+Every function takes profiles ``(..., n)`` and returns ``(...)``; normalising
+by ``n`` makes 4x finer learned profiles comparable with the live sensors.
+
+Notes (why each is invariant, what each measures): docs/pil.md.
 """
 
 from __future__ import annotations

@@ -1,71 +1,20 @@
 """Pseudo Image Localization (PIL): Lambert, Jaiem, Lapierre, Crestani, "PIL: A new algorithm
 for mobile robot localization", 2020 (hal-02494512).
 
-Off-line (:mod:`.pil_learning`): a simulated robot at the centre of every
-valid tile of an ``r``-sized grid, heading 0, records ``N_s`` pseudo-images
-``I(L, C, k) = 1 - D_s / R`` (sections 2.2, equations 1-2); orientation-free
-level functions ``I_n`` of every tile are computed from them (section 2.3,
-:mod:`.pil_levels`).
+Off-line (:mod:`.learning`, section 2.2): pseudo-images ``I = 1 - D_s / R`` of
+every valid tile of an ``r``-sized grid, and their orientation-free level
+functions (section 2.3, :mod:`.levels`). On-line (this module and
+:mod:`.matching`, sections 2.4-2.7): the level functions of the live scan
+select candidate tiles (equation 4) inside a spatial window, theta of every
+candidate comes from circular cross-correlation of the profiles (section
+2.5), and the best candidate is the estimate.
 
-On-line (this module, :mod:`.pil_matching`): the live scan becomes ``N_s``
-sensor intensities (equation 3) and their level functions ``E_n``; tiles with
-``AND_n alpha_n |I_n - E_n| < sigma_n`` form the binary candidate image of
-equation (4), inside a spatial window around the last estimate that covers the
-whole map at start, after a kidnapping and when lost (section 2.7); theta of
-every candidate comes from the circular cross-correlation of the live profile
-with the learned one (section 2.5); the best candidate is the estimate.
+Beyond the paper: candidates ranked by the level functions rather than only
+filtered, a truncated squared-difference score, sub-tile refinement, heading
+sheets for a limited field of view, and an escape from the window when places
+outside it keep scoring better.
 
-Choices and additions, written down (the paper leaves them open, or DESIGN.md
-"Measured here" showed they matter):
-
-* **Candidate selection.** Equation (4) is computed and reported
-  (``filter_count``; :attr:`PilLocalizer.candidate_image`). Candidates are the
-  tiles that pass it, *ranked* by ``sum_n min((alpha_n |I_n - E_n| / sigma_n)^2, cap)``
-  and capped at ``max_candidates``; when fewer than ``min_candidates`` pass,
-  the best-ranked others are added (real sensor noise needs a sigma so wide
-  that a fixed filter passes most tiles or drops the right one; ranking keeps
-  it in the top few hundred). ``min_candidates = 0`` is the paper's pure filter.
-* **Match score.** The normalised truncated squared difference of the aligned
-  profiles (``0`` perfect, ``1`` every sensor off by more than ``tau``), not a
-  raw correlation; theta itself comes from an FFT correlation (see
-  :mod:`.pil_matching`).
-* **Sub-tile refinement** (optional, ``refine_candidates > 0``): the best few
-  candidates are refined against the map's distance field and rescored by
-  casting the ``N_s`` sensors from the refined pose; a candidate keeps the
-  better of its tile pose and its refined pose.
-* **Limited field of view** (beyond the paper): the paper assumes a full-range
-  sensor. For a scan covering less than 360 degrees the level functions are
-  learned on ``K`` heading sheets (sectors of the full-circle profiles at
-  headings ``2 pi j / K``) and a tile is a candidate if any sheet matches; theta
-  is found by correlation within the field of view over all headings.
-* **Window.** A square of side ``window_size`` centred on the last estimate,
-  moved by the odometry received since (``on_odometry``; PIL is otherwise
-  odometry-free). If the best score inside the window is above
-  ``kidnap_score``, the same update searches the whole map (a kidnapping is
-  recovered in one update, section 3.1). A LOST estimate, ``reinitialize()``
-  and the start use the whole map. Each windowed update also scores the
-  ``global_candidates`` best-ranked tiles outside the window, which replace
-  the window's best once their score advantage, accumulated over updates,
-  exceeds ``global_switch_margin``: a window
-  that settled on the twin of a symmetric place (the corridor of section 3.2)
-  is left as soon as the scan tells the twins apart, not never.
-* **Outputs.** ``pose`` = best candidate; ``covariance`` = weighted spread of
-  the candidates scoring within ``ambiguity_margin`` of the best, plus the
-  grid quantisation (``r^2 / 12``, ``Delta^2 / 12``); status ``AMBIGUOUS``
-  when a candidate farther than ``ambiguity_distance`` or
-  ``ambiguity_angle`` from the best scores within ``ambiguity_margin`` of it
-  (the corridor of section 3.2), ``LOST`` when the best score exceeds
-  ``lost_score``.
-* **A scan the learning does not fit.** A field of view other than the learned
-  one (beyond one beam step), or a ``range_max`` below the learned ``R``,
-  triggers a warning (logger and ``details["warning"]``) and a relearning for
-  the scan's geometry (from the cache when it was learned before) rather than
-  wrong answers. The laser pose is estimated; the adapter handles the mount.
-* **Bad readings.** NaN / -inf / below ``range_min`` readings are invalid and
-  carry zero weight; ``inf`` and readings at or beyond ``range_max`` (and
-  beyond ``R``) read ``R`` (I = 0, as in the learning); a changed beam count
-  rebuilds the beam-to-sensor mapping; fewer than ``min_valid_fraction`` valid
-  sensors raise :class:`~robot_localization_suite.core.errors.ScanError`.
+Notes (choices, departures, status, measured figures): docs/pil.md.
 """
 
 from __future__ import annotations

@@ -2,35 +2,19 @@
 
 Pieces, in the order a query uses them:
 
-* :class:`SensorLayout`: the ``N_s`` sensors evenly spaced over the field of
-  view, and the finer learned directions (``angular_upsampling`` per sensor
-  step) around the full circle.
-* :class:`BeamMapping`: live beams -> ``N_s`` sensors. ``"nearest"`` (default)
-  takes, for each sensor, the valid beam whose angle is nearest to the
-  sensor's angle within half a sensor step: the learned profile is one ray per
-  direction, so one beam per sensor is the consistent choice. ``"sector_min"``
-  takes the shortest valid reading within the sensor's sector (more robust to
-  thin obstacles, biased short). No-returns read ``R``; a sensor with no valid
-  beam in its sector is *invalid* and carries zero weight.
+* :class:`SensorLayout`: the ``N_s`` sensors over the field of view and the finer
+  learned directions around the full circle.
+* :class:`BeamMapping`: live beams -> ``N_s`` sensors, ``"nearest"`` (default)
+  or ``"sector_min"``; a sensor with no valid beam is invalid (zero weight).
 * :func:`sheet_features`: the level functions of every valid tile for each
-  *heading sheet*. For a 360 degree sensor there is one sheet (the level
-  functions are orientation-free). For a limited field of view there are ``K``
-  reference headings ``h_j = 2 pi j / K``: sheet j holds the level functions
-  of the sector of the learned profile a sensor at heading ``h_j`` would see.
-* :func:`correlate_profiles`: theta for every candidate by circular
-  cross-correlation (FFT) of the live profile with the learned profile at 4x
-  finer angles. The paper's "correlation" is read as the masked sum of squared
-  differences, which is itself a sum of two FFT cross-correlations
-  (``sum w a^2 - 2 (w a) * B + w * B^2``): unlike a raw product it does not
-  favour bright (near) profiles, and it ignores invalid sensors. Its best few
-  local minima are then rescored by a *truncated* squared difference
-  (``min(d^2, tau^2)``), which a few unmodelled obstacles cannot dominate
-  (measured on a simulated floor: 97 % vs 91 % for plain SSD and 88 % for
-  Pearson correlation, DESIGN.md). Scores are normalised by ``tau^2`` so that
-  0 is a perfect match and 1 means every sensor disagrees by more than tau.
-* :func:`refine_poses`: optional sub-tile refinement: Gauss-Newton on the
-  distance field (scan endpoints pulled onto obstacles, residuals above a
-  truncation ignored), the pose kept within a bounded shift of its tile.
+  heading sheet (one for 360 degrees, ``K`` for a limited field of view).
+* :func:`correlate_profiles`: theta of every candidate by circular
+  cross-correlation (FFT) of the masked squared differences, the best local
+  minima rescored by a truncated squared difference normalised by ``tau^2``.
+* :func:`refine_poses`: optional sub-tile Gauss-Newton refinement on the
+  distance field.
+
+Notes (the reading of the paper's correlation, measured figures): docs/pil.md.
 """
 
 from __future__ import annotations
@@ -143,7 +127,7 @@ class LiveProfile:
 
 
 class BeamMapping:
-    """Assignment of a scan geometry's beams to the ``N_s`` sensors (see the module docstring).
+    """Assignment of a scan geometry's beams to the ``N_s`` sensors (docs/pil.md, "On-line matching").
 
     Built once per scan geometry (angle_min, increment, beam count) and reused.
     """

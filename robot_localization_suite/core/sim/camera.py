@@ -1,39 +1,18 @@
 """A simulated forward camera: grey or colour images rendered from an occupancy grid.
 
-The renderer is a column ray caster in the manner of the classic 2.5-D
-engines: one ray per image column through the shared :class:`RayCaster`, the
-wall drawn from the floor to ``wall_height`` with its on-screen height set by
-the distance (pinhole projection), floor and ceiling filled below and above it.
-What makes the images useful for image matching (IMA, thesis 003 chapter 2)
-is that every surface is anchored to the world:
+A column ray caster in the manner of the classic 2.5-D engines: one ray per
+image column through the shared :class:`RayCaster`, the wall drawn from the
+floor to ``wall_height`` with its on-screen height set by the distance
+(pinhole projection), floor and ceiling filled below and above it. Every
+surface is anchored to the world, as image matching (IMA, thesis 003
+chapter 2) needs: walls carry crops of photographs bundled with scikit-image
+chosen by a hash of the wall segment, floor and ceiling are textured at the
+world point each pixel sees, and people are textured cylinders that occlude
+what is behind them. Lighting variation and pixel noise are applied only when
+a random generator is passed to :meth:`CameraRenderer.render`; column 0 is
+the left of the image (REP 103).
 
-* **Walls** carry crops of real photographs shipped inside the scikit-image
-  wheel (``skimage.data``: brick, camera, coins, text, grass, gravel, page,
-  clock, moon, coffee, rocket, chelsea, ...; nothing is downloaded). A wall
-  face of the grid is cut into segments ``texture_segment_m`` long; each
-  segment's photograph crop and mirror are chosen by a hash of (face
-  orientation, face line, side, segment index, ``texture_seed``), and the
-  texture column is the hit point's coordinate along the face. So a wall looks
-  the same from every pose, and segment borders give vertical edges like
-  furniture and door frames.
-* **Floor** (a low-contrast carpet made from the gravel photograph) and
-  **ceiling** (ceiling panels with lamps every 2 m) are textured at the world
-  point each pixel sees.
-* **People** are upright textured cylinders (``person_height`` tall, the
-  astronaut photograph) that occlude whatever is behind them in their columns.
-
-Shading: albedo x (ambient + face-orientation diffuse term) x distance
-attenuation. ``lighting_variation`` (0..1) scales a random global gain, a
-left-right light gradient and the diffuse term of each image; together with
-Gaussian pixel noise (``noise_std`` grey levels) they are applied only when a
-random generator is passed to :meth:`CameraRenderer.render`, so that a call
-without one is deterministic (the nominal image).
-
-Geometry and conventions: the camera sits at the pose, ``camera_height`` above
-the floor, looking along the pose heading; column 0 is the left of the image
-(REP 103: counter-clockwise angles are to the left). Textures are sampled
-with nearest neighbour from a small mip pyramid chosen per column by the
-texel-to-pixel ratio, which avoids the shimmer of far walls.
+Notes (textures, shading, mip levels, defaults): docs/simulator.md.
 """
 
 from __future__ import annotations

@@ -1,54 +1,15 @@
 """Simulator scenarios: what the simulated world and robot do, loaded from YAML.
 
 A scenario names a map (nav2 map_server YAML, path relative to the scenario
-file), a start pose, how the robot moves, when it is kidnapped, which unmapped
-people walk around, and the laser, odometry and (optionally) camera models.
-Everything is validated on load; a :class:`ScenarioError` names the field and
-the bad value (a start pose in an obstacle carries the pose).
+file), a start pose, how the robot moves (waypoints, followed
+rotate-then-drive, or velocity segments), when it is kidnapped, which
+unmapped people walk around, and the laser, odometry and (optionally) camera
+models. Everything is validated on load; a :class:`ScenarioError` names the
+field and the bad value. The true trajectory does not depend on any noise: it
+is integrated once (exact unicycle arcs) and checked to keep ``robot_radius``
+from obstacles.
 
-YAML layout (every section but ``map`` and ``start`` is optional)::
-
-    name: office_kidnap
-    map: ../maps/office.yaml          # relative to this file
-    seed: 7                           # noise seed (the trajectory itself is deterministic)
-    duration: 120.0                   # [s]; default: when the motion ends
-    robot_radius: 0.2                 # [m] clearance the robot path must keep from obstacles
-    start: [x, y, yaw]                # [m, m, rad]
-    motion:                           # either waypoints or segments
-      linear_speed: 0.5               # [m/s]
-      angular_speed: 0.8              # [rad/s]
-      waypoints:                      # [x, y] or [x, y, yaw] (then turn to yaw), or {wait: s}
-        - [4.0, 2.0]
-        - [4.0, 6.0, 1.57]
-        - {wait: 2.0}
-      # segments: [{v: 0.5, w: 0.0, duration: 4.0}, ...]   # [m/s, rad/s, s]
-    kidnappings: [{time: 40.0, pose: [x, y, yaw], continue_at: 12}]   # continue_at: optional waypoint index
-    people: [{radius: 0.25, speed: 0.8, waypoints: [[x, y], [x, y]], loop: false}]
-    laser: {beams: 360, fov_deg: 360, range_min: 0.1, range_max: 12.0, rate_hz: 10,
-            range_noise_std: 0.015, range_noise_model: gaussian, range_noise_bound: 0.05,
-            outlier_prob: 0.015, dropout_prob: 0.005, mount: [0, 0, 0]}
-    odometry: {model: alphas, alpha1: 0.01, alpha2: 0.005, alpha3: 0.05, alpha4: 0.01,
-               scale_error: 0.01, heading_drift: 0.005}
-    camera: {hfov_deg: 60, width: 320, height: 240, rate_hz: 5, lighting_variation: 0.1,
-             texture_seed: 3, encoding: mono8}   # other keys go to the renderer (camera_height, ...)
-
-Choices made here (the issue leaves them open):
-
-* Waypoints are followed rotate-then-drive: turn in place toward the next
-  waypoint at ``angular_speed``, drive straight at ``linear_speed``, then turn
-  to the waypoint's yaw if one is given. The true path is therefore exactly
-  the polyline of the waypoints, which makes validation exact.
-* The true trajectory does not depend on any noise: it is integrated once
-  (exact unicycle arcs, sub-steps of at most 10 ms) when first needed, and
-  every pose on it is checked to keep ``robot_radius`` from obstacles.
-* A kidnapping takes effect at the first laser step at or after its time. The
-  robot then carries on with the motion it was doing (toward the same
-  waypoint, or the same velocity segment) from the new pose, or heads for
-  waypoint ``continue_at`` when the kidnapping names one (so that a route can
-  go on from the place the robot was carried to).
-* People walk their waypoints at constant speed, back and forth (``loop:
-  false``) or round a closed polygon (``loop: true``), starting at the first
-  waypoint at t = 0. Their centre line must stay in free space.
+YAML layout and the choices made here: docs/simulator.md.
 """
 
 from __future__ import annotations

@@ -1,41 +1,18 @@
 """The simulated robot: true motion, noisy odometry, laser scans and camera images.
 
-:class:`Simulator` steps a :class:`~robot_localization_suite.core.scenario.Scenario`
+:class:`Simulator` steps a :class:`~robot_localization_suite.core.sim.scenario.Scenario`
 at the laser rate. Step ``k`` is at time ``k / rate_hz`` (step 0 is the start
 pose, before any motion) and returns the true pose, the odometry pose, a
-laser scan, the people, and a camera image when one is due.
+laser scan (the shared ray caster plus analytic ray-circle hits on people,
+then range noise, outliers, dropouts and REP 117 limits), the people, and a
+camera image from :mod:`.camera` when one is due. Odometry integrates the true
+motion (a kidnapping's jump is not seen) perturbed by the scenario's
+:class:`~robot_localization_suite.core.sim.scenario.OdometryConfig`, from
+``(0, 0, 0)`` in ``odom``. One seed is split into independent streams for the
+laser, the odometry and the camera; the same seed gives bit-identical output.
+Without a motion plan, velocity commands drive the robot, which stops at walls.
 
-Sensing:
-
-* Ranges come from the shared :class:`~robot_localization_suite.core.raycast.RayCaster`
-  (exact cell-boundary distances on the map) and from an analytic ray-circle
-  intersection with every person, vectorised over beams x people; the nearer
-  one wins. A person whose circle contains the laser is ignored (the model has
-  no contact between robot and people).
-* Noise, in this order: range noise on every hit (Gaussian ``N(0, std)`` or
-  uniform ``U(-bound, +bound)``); outliers (``p_rand`` of Probabilistic
-  Robotics: uniform in ``[range_min, range_max)``); dropouts (``+inf``). Then
-  REP 117: readings at or beyond ``range_max`` become ``+inf``, readings below
-  ``range_min`` ``-inf``. The scan is taken instantly at the step's pose (no
-  motion distortion: ``time_increment`` is 0).
-* Odometry integrates, step by step, the true motion from the previous true
-  pose to where this step's motion ended (a kidnapping's jump is not seen),
-  perturbed by the scenario's :class:`~robot_localization_suite.core.scenario.OdometryConfig`.
-  It starts at the identity pose ``(0, 0, 0)`` in the ``odom`` frame, as wheel
-  odometry does.
-* Camera images are rendered at the true base pose by
-  ``robot_localization_suite.core.camera.CameraRenderer``, imported only when
-  the scenario has a ``camera`` section.
-
-Randomness: one seed (the scenario's unless given) is split with
-``numpy.random.SeedSequence`` into independent streams for the laser, the
-odometry and the camera, so that adding a camera does not change the scans,
-and the same seed gives bit-identical output.
-
-Without a motion plan the simulator is driven by velocity commands
-(:meth:`Simulator.step` with ``command=(v, w)``); a command that would bring
-the robot closer than ``robot_radius`` to an obstacle is reduced to its
-rotation (the robot stops at the wall), and the step reports ``blocked``.
+Notes (the noise order, people, randomness, commands): docs/simulator.md.
 """
 
 from __future__ import annotations
