@@ -39,6 +39,7 @@ bench: $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robot_localization_suite test
+	$(VENV)/bin/mypy
 
 clean:
 	rm -rf build install log results .pytest_cache

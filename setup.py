@@ -57,6 +57,8 @@ setup(
             "pytest==9.2.0",
             "hypothesis==6.170.15",
             "ruff==0.17.6",
+            "mypy==2.4.1",
+            "types-PyYAML==6.0.12.20261122",
             "colcon-core==0.21.3",
             "colcon-ros==0.5.0",
             "colcon-python-setup-py==0.2.9",

@@ -14,13 +14,12 @@ No ROS import: ``ros/params.py`` turns the table into parameter descriptors.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import numbers
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import yaml
 
@@ -150,9 +149,10 @@ class Parameter:
             raise SettingsError(f"parameter {self.name} must be {_KIND_TEXT[kind]}, got {value!r}")
         if not isinstance(value, kind):
             raise SettingsError(f"parameter {self.name} must be {_KIND_TEXT[kind]}, got {value!r}")
-        self.check(value)
+        checked = cast(ParamValue, value)
+        self.check(checked)
         convert = _CONVERSIONS.get((self.setting.unit, self.setting.ros_unit or self.setting.unit))
-        return convert[1](value) if convert else value
+        return convert[1](float(checked)) if convert else checked
 
     def check(self, value: ParamValue) -> None:
         """Refuse a ROS value outside the range or the choices, naming the parameter and the range.
@@ -224,10 +224,11 @@ def _check_value(owner: str, name: str, value: Any, default: Any, meta: Setting)
         return
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or (kind is int and not isinstance(value, numbers.Integral)):
         raise SettingsError(f"{where} must be {'an integer' if kind is int else 'a number'}, got {value!r}")
-    if not math.isfinite(value):
+    number = float(value)
+    if not math.isfinite(number):
         raise SettingsError(f"{where} must be finite, got {value!r}")
-    too_low = meta.low is not None and (value < meta.low or (meta.low_open and value == meta.low))
-    too_high = meta.high is not None and (value > meta.high or (meta.high_open and value == meta.high))
+    too_low = meta.low is not None and (number < meta.low or (meta.low_open and number == meta.low))
+    too_high = meta.high is not None and (number > meta.high or (meta.high_open and number == meta.high))
     if too_low or too_high:
         shown = Parameter(name, (name,), default, meta.unit, meta.low, meta.high, meta).range_text()
         unit = f" {meta.unit}" if meta.unit else ""
@@ -239,19 +240,30 @@ def _fields(cls: type) -> Iterator[tuple[dataclasses.Field[Any], Any]]:
         yield field, field.metadata
 
 
-@functools.cache
+def _nested_class(field: dataclasses.Field[Any]) -> type:
+    """The settings class a :func:`nested` field holds."""
+    factory = field.default_factory
+    assert callable(factory), field.name
+    return type(factory())
+
+
+_TABLES: dict[type, tuple[Parameter, ...]] = {}
+
+
 def parameters(cls: type[Settings]) -> tuple[Parameter, ...]:
     """Every ROS parameter of a settings class (nested ones flattened), in field order.
 
     Raises:
         SettingsError: a field without :func:`setting` / :func:`nested`, or a name used twice.
     """
+    if cls in _TABLES:
+        return _TABLES[cls]
     found: list[Parameter] = []
 
     def visit(klass: type, prefix: tuple[str, ...]) -> None:
         for field, meta in _fields(klass):
             if meta.get(_NESTED):
-                visit(type(field.default_factory()), (*prefix, field.name))  # type: ignore[misc]
+                visit(_nested_class(field), (*prefix, field.name))
                 continue
             info: Setting | None = meta.get(_KEY)
             if info is None:
@@ -260,8 +272,8 @@ def parameters(cls: type[Settings]) -> tuple[Parameter, ...]:
             if not isinstance(default, (bool, int, float, str)):
                 raise SettingsError(f"{klass.__name__}.{field.name}: default {default!r} is no ROS parameter type")
             probe = Parameter(info.ros_name or field.name, (*prefix, field.name), default, info.unit, None, None, info)
-            low = None if info.low is None else probe.to_ros(info.low)
-            high = None if info.high is None else probe.to_ros(info.high)
+            low = None if info.low is None else float(probe.to_ros(info.low))
+            high = None if info.high is None else float(probe.to_ros(info.high))
             found.append(dataclasses.replace(probe, default=probe.to_ros(default), unit=info.ros_unit or info.unit,
                                              low=low, high=high))
 
@@ -270,7 +282,8 @@ def parameters(cls: type[Settings]) -> tuple[Parameter, ...]:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise SettingsError(f"{cls.__name__}: parameter names used twice: {', '.join(twice)}")
-    return tuple(found)
+    _TABLES[cls] = tuple(found)
+    return _TABLES[cls]
 
 
 def flatten_params(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -305,7 +318,7 @@ def _build(cls: type[S], prefix: tuple[str, ...], tree: dict[tuple[str, ...], di
     kwargs = dict(tree.get(prefix, {}))
     for field, meta in _fields(cls):
         if meta.get(_NESTED):
-            kwargs[field.name] = _build(type(field.default_factory()), (*prefix, field.name), tree)  # type: ignore[misc]
+            kwargs[field.name] = _build(_nested_class(field), (*prefix, field.name), tree)
     return cls(**kwargs)
 
 

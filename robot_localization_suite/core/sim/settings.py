@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..errors import ScenarioError
 from ..grid_map import load_map_yaml
@@ -79,9 +80,9 @@ class ScanSimSettings(Settings):
     laser_frame: str = setting("laser", "frame of scan")
     camera_frame: str = setting("camera", "frame of camera/image_raw")
 
-    def overrides(self, names: dict[str, str]) -> dict[str, object]:
+    def overrides(self, names: dict[str, str]) -> dict[str, Any]:
         """The scenario fields these settings override (the non-negative, non-empty ones)."""
-        out: dict[str, object] = {}
+        out: dict[str, Any] = {}
         for name, target in names.items():
             value = getattr(self, name)
             if (isinstance(value, str) and value) or (not isinstance(value, str) and value >= 0):
@@ -111,8 +112,8 @@ def build_scenario(settings: ScanSimSettings, scenario_path: Path | None) -> Sce
     return Scenario(
         grid_map=load_map_yaml(settings.map_yaml),
         start=(settings.start_x, settings.start_y, settings.start_yaw),
-        laser=LaserConfig(**laser_changes),  # type: ignore[arg-type]
-        odometry=OdometryConfig(**odom_changes),  # type: ignore[arg-type]
+        laser=LaserConfig(**laser_changes),
+        odometry=OdometryConfig(**odom_changes),
         robot_radius=settings.robot_radius,
         name="cmd_vel",
     )
