@@ -32,7 +32,7 @@ from robot_localization_suite.core.localizer import GlobalFixer, Localizer, Loca
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount, Scan
 from robot_localization_suite.core.se2 import compose, wrap_angle
-from robot_localization_suite.core.sim.scenario import OdometryConfig
+from robot_localization_suite.core.sim.config import OdometryConfig
 from robot_localization_suite.core.sim.simulator import OdometrySimulator
 
 EPS = 0.05  # eps_y of the tests [m]

@@ -18,7 +18,7 @@ from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
 from robot_localization_suite.core.se2 import compose
 from robot_localization_suite.core.settings import parameters
-from robot_localization_suite.core.sim.scenario import OdometryConfig
+from robot_localization_suite.core.sim.config import OdometryConfig
 from robot_localization_suite.core.sim.simulator import OdometrySimulator
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter

@@ -17,7 +17,7 @@ from robot_localization_suite.core.ima.settings import ImaSettings
 from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.se2 import angle_difference
-from robot_localization_suite.core.sim.scenario import load_scenario
+from robot_localization_suite.core.sim.scenario_yaml import load_scenario
 from robot_localization_suite.core.sim.simulator import Simulator
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import LocalizerAdapter

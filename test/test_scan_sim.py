@@ -21,7 +21,7 @@ import yaml
 
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.se2 import quaternion_to_yaw
-from robot_localization_suite.core.sim.scenario import load_scenario
+from robot_localization_suite.core.sim.scenario_yaml import load_scenario
 from robot_localization_suite.core.sim.settings import ScanSimSettings, build_scenario
 from robot_localization_suite.core.sim.simulator import Simulator
 from robot_localization_suite.nodes import scan_sim

@@ -19,17 +19,16 @@ from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.motion import OdometryMotionModel, odometry_delta
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.se2 import angle_difference, relative
-from robot_localization_suite.core.sim.scenario import (
+from robot_localization_suite.core.sim.config import (
     Kidnapping,
     LaserConfig,
     MotionPlan,
     OdometryConfig,
     Person,
-    Scenario,
     VelocitySegment,
-    load_scenario,
-    scenario_from_dict,
 )
+from robot_localization_suite.core.sim.scenario import Scenario
+from robot_localization_suite.core.sim.scenario_yaml import load_scenario, scenario_from_dict
 from robot_localization_suite.core.sim.simulator import Simulator, ray_circle_ranges
 from robot_localization_suite.tools.make_maps import MAP_BUILDERS
 

@@ -325,7 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"not available: {', '.join(missing)} (available: {', '.join(available) or 'none'})")
 
     from ..core.errors import ScenarioError
-    from ..core.sim.scenario import load_scenario
+    from ..core.sim.scenario_yaml import load_scenario
 
     try:
         scenario_path = _resolve_scenario(args.scenario)

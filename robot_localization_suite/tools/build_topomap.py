@@ -32,7 +32,8 @@ import yaml
 from ..core.errors import LocalizationSuiteError, MapError, ScenarioError
 from ..core.ima.matching import ImaSettings, TopologicalMap, TopoNode, build_panorama, save_topomap
 from ..core.sim.camera import CameraRenderer
-from ..core.sim.scenario import Scenario, load_scenario
+from ..core.sim.scenario import Scenario
+from ..core.sim.scenario_yaml import load_scenario
 
 __all__ = ["snapshot_turns", "load_nodes", "build_topomap", "main"]
 

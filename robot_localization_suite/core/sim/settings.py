@@ -13,7 +13,9 @@ from typing import Any
 from ..errors import ScenarioError
 from ..grid_map import load_map_yaml
 from ..settings import Settings, setting
-from .scenario import ODOMETRY_MODELS, RANGE_NOISE_MODELS, LaserConfig, OdometryConfig, Scenario, load_scenario
+from .config import ODOMETRY_MODELS, RANGE_NOISE_MODELS, LaserConfig, OdometryConfig
+from .scenario import Scenario
+from .scenario_yaml import load_scenario
 
 __all__ = ["ScanSimSettings", "LASER_OVERRIDES", "ODOMETRY_OVERRIDES", "build_scenario"]
 

@@ -7,7 +7,7 @@ laser scan (the shared ray caster plus analytic ray-circle hits on people,
 then range noise, outliers, dropouts and REP 117 limits), the people, and a
 camera image from :mod:`.camera` when one is due. Odometry integrates the true
 motion (a kidnapping's jump is not seen) perturbed by the scenario's
-:class:`~robot_localization_suite.core.sim.scenario.OdometryConfig`, from
+:class:`~robot_localization_suite.core.sim.config.OdometryConfig`, from
 ``(0, 0, 0)`` in ``odom``. One seed is split into independent streams for the
 laser, the odometry and the camera; the same seed gives bit-identical output.
 Without a motion plan, velocity commands drive the robot, which stops at walls.
@@ -31,7 +31,9 @@ from ..motion import OdometryMotionModel, apply_delta, odometry_delta
 from ..raycast import RayCaster
 from ..scan import Scan
 from ..se2 import angle_difference, compose, wrap_angle
-from .scenario import OdometryConfig, Scenario, integrate_unicycle
+from .config import OdometryConfig
+from .scenario import Scenario
+from .trajectory import integrate_unicycle
 
 __all__ = ["Simulator", "SimulationStep", "ray_circle_ranges", "apply_range_noise", "OdometrySimulator"]
 
