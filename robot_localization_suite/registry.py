@@ -132,7 +132,7 @@ def _create_ial(settings: IALSettings) -> Any:
 
 
 def _create_ima(settings: ImaTrackerSettings) -> Any:
-    from .core.ima.matching import load_topomap
+    from .core.ima.topomap import load_topomap
     from .core.ima.tracking import ImaTopoLocalizer
 
     return ImaTopoLocalizer(load_topomap(resolve_config_path(settings.topomap, "topomap")), settings)

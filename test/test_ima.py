@@ -12,22 +12,11 @@ import yaml
 
 from robot_localization_suite.core.errors import MapError
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.ima.matching import (
-    ImaSettings,
-    PanoramaBank,
-    PlaceMatch,
-    TopologicalMap,
-    TopoNode,
-    best_matching,
-    build_panorama,
-    heading_from_col,
-    ima,
-    load_topomap,
-    match_slots,
-    panorama_width,
-    save_topomap,
-    slot_values,
-)
+from robot_localization_suite.core.ima.matching import best_matching, ima, match_slots, slot_values
+from robot_localization_suite.core.ima.panorama import build_panorama, heading_from_col, panorama_width
+from robot_localization_suite.core.ima.places import PanoramaBank, PlaceMatch
+from robot_localization_suite.core.ima.settings import ImaSettings
+from robot_localization_suite.core.ima.topomap import TopologicalMap, TopoNode, load_topomap, save_topomap
 from robot_localization_suite.core.ima.tracking import (
     Hypotheses,
     ImageError,

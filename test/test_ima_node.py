@@ -12,8 +12,8 @@ import yaml
 from robot_localization_suite import registry
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.errors import MapError, ScenarioError
-from robot_localization_suite.core.ima.matching import load_topomap
 from robot_localization_suite.core.ima.settings import ImaSettings
+from robot_localization_suite.core.ima.topomap import load_topomap
 from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.se2 import angle_difference

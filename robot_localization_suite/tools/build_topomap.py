@@ -30,7 +30,9 @@ import numpy as np
 import yaml
 
 from ..core.errors import LocalizationSuiteError, MapError, ScenarioError
-from ..core.ima.matching import ImaSettings, TopologicalMap, TopoNode, build_panorama, save_topomap
+from ..core.ima.panorama import build_panorama
+from ..core.ima.settings import ImaSettings
+from ..core.ima.topomap import TopologicalMap, TopoNode, save_topomap
 from ..core.sim.camera import CameraRenderer
 from ..core.sim.scenario import Scenario
 from ..core.sim.scenario_yaml import load_scenario

@@ -28,8 +28,10 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import ImageError
 from ..localizer import Estimate, LocalizerStatus
 from ..se2 import angle_difference, compose, relative, wrap_angle
-from .matching import PanoramaBank, PlaceMatch, TopologicalMap, to_grey
+from .images import to_grey
+from .places import PanoramaBank, PlaceMatch
 from .settings import ODOMETRY_RESETS, ImaTrackerSettings
+from .topomap import TopologicalMap
 
 PLAIN_COMPARISON = 0  # PlaceMatch.comparison of image -> panorama without zoom
 
