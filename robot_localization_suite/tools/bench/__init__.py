@@ -71,14 +71,14 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from .. import registry
-from ..core import metrics
-from ..core.errors import BagError, LocalizationSuiteError, MapError
-from ..core.grid_map import GridMap, load_map_yaml
-from ..core.scan import LaserMount
-from ..ros import conversions
-from ..ros.adapter import LocalizerAdapter
-from ..ros.bag import BagMessage, bag_topics, read_bag
+from ... import registry
+from ...core import metrics
+from ...core.errors import BagError, LocalizationSuiteError, MapError
+from ...core.grid_map import GridMap, load_map_yaml
+from ...core.scan import LaserMount
+from ...ros import conversions
+from ...ros.adapter import LocalizerAdapter
+from ...ros.bag import BagMessage, bag_topics, read_bag
 
 __all__ = [
     "LocalizerSpec",
@@ -448,7 +448,7 @@ def replay_localizer(
 
     handlers = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor}
     try:
-        from ..ros.bag import replay
+        from ...ros.bag import replay
 
         replay(reference.path, handlers, on_message=on_message)
     except _StopReplay:
@@ -763,7 +763,7 @@ def run_benchmark(
         summary[reference.name][spec.name] = fields
         print(f"rls_bench: {reference.name} / {spec.name}: {_one_line(fields)}", file=sys.stderr, flush=True)
         if plots:
-            from .bench_plots import plot_run
+            from .plots import plot_run
 
             plot_run(out / "plots" / reference.name, spec.name, grid_map, reference, result, series)
     write_summary(out, summary, title=f"rls_bench ({mode} mode)")
