@@ -19,7 +19,8 @@ from ...core import metrics  # noqa: E402
 from ...core.grid_map import GridMap  # noqa: E402
 
 if TYPE_CHECKING:
-    from . import BagReference, RunRecord
+    from .reference import BagReference
+    from .replay import RunRecord
 
 __all__ = ["map_image", "plot_run"]
 
