@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -361,3 +363,25 @@ def test_a_dying_child_is_an_error_entry(kidnap_bag, tmp_path):
     path, _ = kidnap_bag
     summary = bench.run_benchmark([path], [bench.LocalizerSpec("dies", exit_at_once)], tmp_path, isolate=True)
     assert summary["room_kidnap"]["dies"]["error"] == "child process died (exit code 3)"
+
+
+# Run in a fresh interpreter: this test process has long since imported rclpy through the bag writer.
+IMPORT_CHECK = """
+import sys
+import robot_localization_suite.tools.bench
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("rclpy", "rosidl_parser", "builtin_interfaces")
+               or m.split(".")[0].endswith("_msgs") or m.startswith("robot_localization_suite.nodes"))
+assert not heavy, heavy
+"""
+
+
+def test_importing_the_benchmark_loads_no_rclpy_messages_or_nodes():
+    result = subprocess.run([sys.executable, "-c", IMPORT_CHECK], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_package_runs_as_a_module():
+    result = subprocess.run([sys.executable, "-m", "robot_localization_suite.tools.bench", "--help"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage: rls_bench")
