@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -240,7 +242,7 @@ def test_run_in_a_child_process(kidnap_bag, tmp_path):
     fields = summary["room_kidnap"]["echo"]
     assert fields["kidnap_recovery_s"] == [pytest.approx(2.0, abs=SCAN_PERIOD)]
     # The child's own peak (python + numpy + rclpy), not this test process's size inherited through fork.
-    assert 50 < fields["peak_rss_mb"] < 300 < bench._own_peak_rss_mb()
+    assert 50 < fields["peak_rss_mb"] < 300 < bench.isolation.own_peak_rss_mb()
     del ballast
 
 
@@ -270,7 +272,7 @@ def test_child_runs_show_precomputation_bars_only_when_asked(kidnap_bag, tmp_pat
 def test_the_verbose_flag_turns_the_child_runs_bars_on(kidnap_bag, tmp_path, monkeypatch):
     path, _ = kidnap_bag
     calls = []
-    monkeypatch.setattr(bench, "run_benchmark", lambda *args, **kwargs: calls.append(kwargs) or {})
+    monkeypatch.setattr(bench.cli, "run_benchmark", lambda *args, **kwargs: calls.append(kwargs) or {})
     for extra in ([], ["-v"]):
         assert bench.main([str(path), "--localizers", "mcl_baseline", "--out", str(tmp_path), *extra]) == 0
     assert [call["child_progress"] for call in calls] == [False, True]
@@ -288,8 +290,8 @@ def test_with_tracking_and_global_fixes_append_their_tables(kidnap_bag, tmp_path
             return {}
         return run
 
-    monkeypatch.setattr(bench, "run_benchmark", fake("replay"))
-    monkeypatch.setattr(bench, "run_global_fixes", fake("fixes"))
+    monkeypatch.setattr(bench.cli, "run_benchmark", fake("replay"))
+    monkeypatch.setattr(bench.cli, "run_global_fixes", fake("fixes"))
     argv = [str(path), "--localizers", "mcl_baseline", "--out", str(tmp_path), "--with-tracking", "--with-global-fixes"]
     assert bench.main(argv) == 0
     assert runs == [("replay", "global", "."), ("replay", "tracking", "tracking"), ("fixes", None, "global_fixes")]
@@ -335,7 +337,7 @@ def test_command_line_refuses_bad_arguments(kidnap_bag, tmp_path, capsys):
     assert bench.main([str(path), "--set", "bad", "--out", str(tmp_path)]) == 1
     assert "name.param=value" in capsys.readouterr().err
     assert bench.main(["--out", str(tmp_path)]) == 1
-    assert bench._parse_overrides(["mcl_baseline.max_particles=5000", "ial_localizer.outliers=2.5"]) == {
+    assert bench.cli._parse_overrides(["mcl_baseline.max_particles=5000", "ial_localizer.outliers=2.5"]) == {
         "mcl_baseline": {"max_particles": 5000}, "ial_localizer": {"outliers": 2.5}}
 
 
@@ -361,3 +363,25 @@ def test_a_dying_child_is_an_error_entry(kidnap_bag, tmp_path):
     path, _ = kidnap_bag
     summary = bench.run_benchmark([path], [bench.LocalizerSpec("dies", exit_at_once)], tmp_path, isolate=True)
     assert summary["room_kidnap"]["dies"]["error"] == "child process died (exit code 3)"
+
+
+# Run in a fresh interpreter: this test process has long since imported rclpy through the bag writer.
+IMPORT_CHECK = """
+import sys
+import robot_localization_suite.tools.bench
+heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("rclpy", "rosidl_parser", "builtin_interfaces")
+               or m.split(".")[0].endswith("_msgs") or m.startswith("robot_localization_suite.nodes"))
+assert not heavy, heavy
+"""
+
+
+def test_importing_the_benchmark_loads_no_rclpy_messages_or_nodes():
+    result = subprocess.run([sys.executable, "-c", IMPORT_CHECK], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_package_runs_as_a_module():
+    result = subprocess.run([sys.executable, "-m", "robot_localization_suite.tools.bench", "--help"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage: rls_bench")

@@ -15,11 +15,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..core import metrics  # noqa: E402
-from ..core.grid_map import GridMap  # noqa: E402
+from ...core import metrics  # noqa: E402
+from ...core.grid_map import GridMap  # noqa: E402
 
 if TYPE_CHECKING:
-    from .bench import BagReference, RunRecord
+    from .reference import BagReference
+    from .replay import RunRecord
 
 __all__ = ["map_image", "plot_run"]
 

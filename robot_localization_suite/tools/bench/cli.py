@@ -1,0 +1,155 @@
+"""The ``rls_bench`` command line: arguments to specs, bags and runs.
+
+    rls_bench BAG... --localizers NAMES --out DIR [--map MAP_YAML] [--mode global|tracking]
+              [--set name.param=value ...] [--max-seconds S] [--no-plots]
+    rls_bench --global-fixes [--every N] BAG... [--localizers NAMES] --out DIR
+    rls_bench --all [--with-global-fixes] [--out results]
+
+Options: ``rls_bench --help``; what a run does: ``docs/benchmark.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ... import registry
+from ...core.errors import BagError, LocalizationSuiteError
+from .run import run_benchmark, run_global_fixes
+from .specs import LocalizerSpec, registry_spec
+from .tables import append_section, summary_table
+
+__all__ = ["main", "discover_bags", "default_bags_dir"]
+
+
+def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+    overrides: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        name, dot, param = key.partition(".")
+        if not sep or not dot or not name or not param:
+            raise ValueError(f"--set expects name.param=value, got {item!r}")
+        overrides.setdefault(name, {})[param] = yaml.safe_load(raw)
+    return overrides
+
+
+def _parse_skips(items: Sequence[str]) -> dict[str, dict[str, str]]:
+    skips: dict[str, dict[str, str]] = {}
+    for item in items:
+        name, sep, pattern = item.partition(":")
+        if not sep or not name or not pattern:
+            raise ValueError(f"--skip expects NAME:BAG_GLOB, got {item!r}")
+        skips.setdefault(name, {})[pattern] = "skipped on the command line"
+    return skips
+
+
+def _split_names(values: Sequence[str] | None) -> list[str]:
+    return [n for v in values or () for n in v.split(",") if n]
+
+
+def default_bags_dir() -> Path:
+    return registry.config_dir().parent / "bags"
+
+
+def discover_bags(bags_dir: Path) -> list[Path]:
+    """Bag directories (with ``metadata.yaml``) under ``bags_dir``, by name."""
+    if not bags_dir.is_dir():
+        return []
+    return sorted(p for p in bags_dir.iterdir() if (p / "metadata.yaml").is_file())
+
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rls_bench",
+        description="Replay bags through localizers in-process and measure them against /ground_truth.",
+    )
+    parser.add_argument("bags", nargs="*", type=Path, help="rosbag2 bag directories")
+    parser.add_argument("--localizers", nargs="+", help="names (comma or space separated); default: all available")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="output directory (default: results)")
+    parser.add_argument("--map", type=Path, default=None, help="map YAML for every bag (default: the bag's /map, "
+                        "else config/maps/<bag or prefix>.yaml)")
+    parser.add_argument("--mode", choices=("global", "tracking"), default="global",
+                        help="global (default): no prior; tracking: the first ground-truth pose on initialpose")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME.PARAM=VALUE",
+                        help="override a localizer parameter (YAML value)")
+    parser.add_argument("--all", action="store_true", help="every available localizer over every bag in bags/")
+    parser.add_argument("--bags-dir", type=Path, default=None, help="where --all looks for bags (default: bags/)")
+    parser.add_argument("--skip", action="append", default=[], metavar="NAME:BAG_GLOB",
+                        help="with --all, leave this localizer out on matching bags")
+    parser.add_argument("--global-fixes", action="store_true", help="single-scan global fixes instead of replays")
+    parser.add_argument("--every", type=int, default=10, help="with --global-fixes: use every N-th scan (default: 10)")
+    parser.add_argument("--with-global-fixes", action="store_true",
+                        help="after the replays, also run --global-fixes into OUT/global_fixes and append its "
+                        "table to OUT/summary.md")
+    parser.add_argument("--with-tracking", action="store_true",
+                        help="after global-mode replays, also replay in tracking mode into OUT/tracking and append "
+                        "its table to OUT/summary.md")
+    parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
+    parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log the localizers' warnings and show their precomputation progress bars")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(name)s: %(message)s")
+    try:
+        overrides = _parse_overrides(args.overrides)
+        skips = _parse_skips(args.skip)
+        bags = list(args.bags)
+        if args.all:
+            bags += [b for b in discover_bags(args.bags_dir or default_bags_dir()) if b not in bags]
+        if not bags:
+            raise ValueError("no bag given (pass BAG... or --all)")
+        available = list(registry.PLUGINS)
+        names = _split_names(args.localizers) or available
+        unknown = [n for n in names if n not in available]
+        if unknown:
+            raise ValueError(f"localizer(s) {', '.join(unknown)} not available; available: {', '.join(available) or 'none'}")
+        if not names:
+            raise ValueError("no localizer is available in this checkout")
+        specs = []
+        for name in names:
+            spec = registry_spec(name, overrides.get(name))
+            if name in skips:
+                spec = LocalizerSpec(spec.name, spec.factory, spec.uses_camera, spec.mount, {**spec.skip, **skips[name]})
+            specs.append(spec)
+        if args.global_fixes:
+            summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
+                                       isolate=not args.in_process, max_seconds=args.max_seconds,
+                                       honour_skips=args.all, child_progress=args.verbose)
+        else:
+            summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
+                                    isolate=not args.in_process, max_seconds=args.max_seconds,
+                                    plots=not args.no_plots, honour_skips=args.all, progress=True,
+                                    child_progress=args.verbose)
+            if args.with_tracking and args.mode == "global":
+                print(summary_table(summary))
+                summary = run_benchmark(bags, specs, args.out / "tracking", mode="tracking", map_yaml=args.map,
+                                        isolate=not args.in_process, max_seconds=args.max_seconds,
+                                        plots=not args.no_plots, honour_skips=args.all, progress=True,
+                                        child_progress=args.verbose)
+                append_section(args.out, "tracking")
+            if args.with_global_fixes:
+                print(summary_table(summary))
+                summary = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
+                                           map_yaml=args.map, isolate=not args.in_process,
+                                           max_seconds=args.max_seconds, honour_skips=args.all,
+                                           child_progress=args.verbose)
+                append_section(args.out, "global_fixes")
+    except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:
+        print(f"rls_bench: error: {exc}", file=sys.stderr)
+        return 1
+    print(summary_table(summary))
+    print(f"\nwritten: {args.out / 'summary.json'}, {args.out / 'summary.md'}")
+    return 0
+

@@ -1,0 +1,150 @@
+"""What a bag holds for the benchmark: ground truth, odometry, kidnappings, map, topics.
+
+:func:`load_reference` reads it once before the runs; :func:`resolve_map` picks the map
+of a bag (``--map``, the bag's ``/map``, or ``config/maps/``). The ROS modules that read
+bags are imported when a bag is read, not when this module is.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ... import registry
+from ...core import metrics
+from ...core.errors import MapError
+from ...core.grid_map import GridMap, load_map_yaml
+
+if TYPE_CHECKING:
+    from ...ros.bag import BagMessage
+
+__all__ = [
+    "SCAN_TOPIC",
+    "IMAGE_TOPIC",
+    "ODOM_TOPIC",
+    "TRUTH_TOPIC",
+    "MAP_TOPIC",
+    "BagReference",
+    "load_reference",
+    "map_candidates",
+    "resolve_map",
+]
+
+LOG = logging.getLogger("rls_bench")
+
+SCAN_TOPIC = "/scan"
+IMAGE_TOPIC = "/camera/image_raw"
+ODOM_TOPIC = "/odom"
+TRUTH_TOPIC = "/ground_truth"
+MAP_TOPIC = "/map"
+
+
+@dataclass
+class BagReference:
+    """Everything about a bag that the metrics need, read once before the runs."""
+
+    name: str
+    path: Path
+    topics: dict[str, str]
+    ground_truth: metrics.Trajectory | None
+    odometry: metrics.Trajectory | None
+    kidnap_indices: NDArray[np.int64]
+    map_msg_grid: GridMap | None
+    sensor_counts: dict[str, int]
+
+    @property
+    def has_scan(self) -> bool:
+        return SCAN_TOPIC in self.topics
+
+    @property
+    def has_camera(self) -> bool:
+        return IMAGE_TOPIC in self.topics
+
+    @property
+    def kidnap_stamps(self) -> NDArray[np.float64]:
+        if self.ground_truth is None or self.kidnap_indices.size == 0:
+            return np.zeros(0)
+        return self.ground_truth.stamps[self.kidnap_indices]
+
+
+def _topic_counts(path: Path) -> dict[str, int]:
+    from rosbags.rosbag2 import Reader
+
+    try:
+        with Reader(path) as reader:
+            return {name: int(info.msgcount) for name, info in reader.topics.items()}
+    except Exception:  # noqa: BLE001 - counts only drive progress bars
+        return {}
+
+
+def _trajectory(messages: list[BagMessage]) -> metrics.Trajectory | None:
+    from ...ros import conversions
+
+    if not messages:
+        return None
+    stamps, poses = zip(*(conversions.odometry_from_msg(m.msg) for m in messages), strict=True)
+    poses_arr = np.array(poses)
+    keep = np.all(np.isfinite(poses_arr), axis=1)
+    if not keep.any():
+        return None
+    return metrics.Trajectory(np.array(stamps)[keep], poses_arr[keep])
+
+
+def load_reference(path: str | os.PathLike[str]) -> BagReference:
+    """Read a bag's ground truth, odometry and map, and find its kidnappings."""
+    from ...ros import conversions
+    from ...ros.bag import bag_topics, read_bag
+
+    path = Path(path)
+    topics = bag_topics(path)
+    truth_msgs, odom_msgs = [], []
+    map_grid = None
+    for item in read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC]):
+        if item.topic == TRUTH_TOPIC:
+            truth_msgs.append(item)
+        elif item.topic == ODOM_TOPIC:
+            odom_msgs.append(item)
+        elif item.topic == MAP_TOPIC and map_grid is None:
+            try:
+                map_grid = conversions.grid_map_from_msg(item.msg)
+            except MapError as exc:
+                LOG.warning("bag %s: ignoring its /map message: %s", path.name, exc)
+    truth = _trajectory(truth_msgs)
+    odometry = _trajectory(odom_msgs)
+    kidnaps = metrics.detect_kidnappings(truth, odometry) if truth is not None else np.zeros(0, dtype=np.int64)
+    counts = _topic_counts(path)
+    return BagReference(
+        name=path.name,
+        path=path,
+        topics=topics,
+        ground_truth=truth,
+        odometry=odometry,
+        kidnap_indices=kidnaps,
+        map_msg_grid=map_grid,
+        sensor_counts={t: counts.get(t, 0) for t in (SCAN_TOPIC, IMAGE_TOPIC)},
+    )
+
+
+def map_candidates(bag_name: str) -> list[Path]:
+    """``config/maps/<bag>.yaml`` then ``config/maps/<prefix>.yaml`` (prefix: up to the first ``_``)."""
+    maps_dir = registry.config_dir() / "maps"
+    names = [bag_name, bag_name.split("_")[0]]
+    return [maps_dir / f"{n}.yaml" for n in dict.fromkeys(names)]
+
+
+def resolve_map(reference: BagReference, map_yaml: str | os.PathLike[str] | None) -> tuple[GridMap | None, str]:
+    """The map of a bag and where it came from: ``--map``, the bag's ``/map``, or ``config/maps/``."""
+    if map_yaml is not None:
+        return load_map_yaml(map_yaml), str(map_yaml)
+    if reference.map_msg_grid is not None:
+        return reference.map_msg_grid, f"{reference.name}:{MAP_TOPIC}"
+    for candidate in map_candidates(reference.name):
+        if candidate.is_file():
+            return load_map_yaml(candidate), str(candidate)
+    return None, "none"

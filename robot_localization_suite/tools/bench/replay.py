@@ -1,0 +1,239 @@
+"""One bag replayed through one localizer, in this process: a :class:`RunRecord`.
+
+Messages go to the same ``ros/adapter.py`` :class:`LocalizerAdapter` the nodes use, in
+bag order, each handled before the next (``ros/bag.py``), so the benchmark measures the
+code a robot runs, without DDS. How a run is fed and timed: ``docs/benchmark.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...core import metrics
+from ...core.grid_map import GridMap
+from .isolation import rss_mb
+from .reference import IMAGE_TOPIC, ODOM_TOPIC, SCAN_TOPIC, BagReference
+from .specs import LocalizerSpec
+
+if TYPE_CHECKING:
+    from ...ros.bag import BagMessage
+
+__all__ = ["TRACKING_COVARIANCE", "RunRecord", "log_sink", "replay_localizer"]
+
+LOG = logging.getLogger("rls_bench")
+
+# Initial pose covariance of --mode tracking: sigma 0.1 m in x and y, 5 degrees in heading.
+TRACKING_COVARIANCE = np.diag([0.1**2, 0.1**2, np.deg2rad(5.0) ** 2])
+
+
+class _TimedLocalizer:
+    """Delegates to a core localizer and times each ``on_scan`` / ``on_image`` call that updates.
+
+    A call that returns no estimate (MCL waiting for ``update_min_d``, IMA between
+    update steps) is not an update: counting its microseconds would hide the cost
+    of the real ones, so only calls that return an estimate are timed.
+    """
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+        self.update_ms: list[float] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def _timed(self, call: Any, *args: Any) -> Any:
+        start = time.perf_counter()
+        result = call(*args)
+        if result is not None:
+            self.update_ms.append((time.perf_counter() - start) * 1e3)
+        return result
+
+    def on_scan(self, scan: Any) -> Any:
+        return self._timed(self._inner.on_scan, scan)
+
+    def on_image(self, stamp: float, image: Any) -> Any:
+        return self._timed(self._inner.on_image, stamp, image)
+
+
+@dataclass
+class RunRecord:
+    """What one replay of one bag through one localizer produced (raw, before the metrics)."""
+
+    bag: str
+    localizer: str
+    mode: str
+    stamps: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    statuses: list[str]
+    candidates: NDArray[np.float64] | None  # (outputs, CANDIDATE_K, 3) NaN-padded; None: no candidates ever
+    update_ms: NDArray[np.float64]
+    inputs: int
+    first_input_stamp: float | None
+    map_setup_s: float | None
+    peak_rss_mb: float | None
+    truncated: bool = False
+    error: str | None = None
+    update_errors: int = 0
+    containment: list[bool] | None = None
+    containment_stamps: list[float] | None = None
+    containment_lost: list[bool] | None = None
+    place_correct: list[bool] | None = None
+    corrected_heading_error_deg: list[float] | None = None
+
+
+class _StopReplay(Exception):
+    pass
+
+
+def log_sink(prefix: str) -> Callable[[str, str], None]:
+    """The adapter's log function: its lines go to the ``rls_bench`` logger, tagged with ``prefix``."""
+    levels = {"debug": logging.DEBUG, "info": logging.DEBUG, "warn": logging.WARNING, "error": logging.ERROR}
+
+    def sink(level: str, text: str) -> None:
+        LOG.log(levels.get(level, logging.INFO), "%s %s", prefix, text)
+
+    return sink
+
+
+def _details_checks(record: RunRecord, details: dict[str, Any], base_truth: NDArray[np.float64],
+                    estimate_pose: NDArray[np.float64]) -> None:
+    """Localizer-specific checks of one output against the (base) truth at its stamp."""
+    if not np.all(np.isfinite(base_truth)):
+        return
+    if "boxes" in details:
+        boxes = np.asarray(details["boxes"], dtype=np.float64)
+        if record.containment is None:
+            record.containment, record.containment_stamps, record.containment_lost = [], [], []
+        record.containment.append(metrics.boxes_contain(boxes, base_truth))
+        record.containment_stamps.append(float(details.get("stamp", np.nan)))
+        record.containment_lost.append(bool(details.get("lost", False)))
+    if "place_xy" in details and "node_xy" in details:
+        record.place_correct = record.place_correct if record.place_correct is not None else []
+        record.place_correct.append(metrics.nearest_node_is_place(details["place_xy"], details["node_xy"], base_truth))
+    if details.get("heading_corrected") is not None:
+        record.corrected_heading_error_deg = record.corrected_heading_error_deg or []
+        if bool(details["heading_corrected"]):
+            _, dtheta = metrics.pose_errors(estimate_pose, base_truth)
+            record.corrected_heading_error_deg.append(float(np.rad2deg(dtheta[0])))
+
+
+def replay_localizer(
+    reference: BagReference,
+    spec: LocalizerSpec,
+    grid_map: GridMap | None,
+    *,
+    mode: str = "global",
+    max_seconds: float | None = None,
+    sample_rss: bool = True,
+    progress: bool = False,
+) -> RunRecord:
+    """Replay one bag through one localizer, in this process (``docs/benchmark.md``, "How a run works")."""
+    from ...ros import conversions
+    from ...ros.adapter import LocalizerAdapter
+    from ...ros.bag import replay
+
+    if mode not in ("global", "tracking"):
+        raise ValueError(f"mode must be 'global' or 'tracking', got {mode!r}")
+    record = RunRecord(
+        bag=reference.name, localizer=spec.name, mode=mode, stamps=np.zeros(0), poses=np.zeros((0, 3)),
+        statuses=[], candidates=None, update_ms=np.zeros(0), inputs=0, first_input_stamp=None, map_setup_s=None,
+        peak_rss_mb=rss_mb() if sample_rss else None,
+    )
+    prefix = f"[{reference.name}/{spec.name}]"
+    sink = log_sink(prefix)
+    timed = _TimedLocalizer(spec.factory())
+    adapter = LocalizerAdapter(timed, node_name=spec.name, log=sink, mount=spec.mount)
+    if grid_map is not None and hasattr(timed, "set_map"):
+        start = time.perf_counter()
+        adapter.set_map(grid_map)
+        record.map_setup_s = round(time.perf_counter() - start, 3)
+    truth = reference.ground_truth
+    stamps: list[float] = []
+    poses: list[NDArray[np.float64]] = []
+    candidates: list[NDArray[np.float64]] = []
+    sensor_topic = IMAGE_TOPIC if spec.uses_camera else SCAN_TOPIC
+    sensor_handler = adapter.on_image_msg if spec.uses_camera else adapter.on_scan_msg
+    errors_seen: dict[str, int] = {}
+
+    def on_sensor(msg: Any) -> None:
+        if record.inputs == 0:
+            record.first_input_stamp = conversions.stamp_to_seconds(msg.header.stamp)
+            if mode == "tracking" and truth is not None:
+                adapter.on_initial_pose_msg(
+                    conversions.initial_pose_to_msg(record.first_input_stamp, truth.poses[0], TRACKING_COVARIANCE)
+                )
+        record.inputs += 1
+        try:
+            output = sensor_handler(msg)
+        except Exception as exc:  # noqa: BLE001 - like the node's guard: log, count, go on
+            record.update_errors += 1
+            key = type(exc).__name__
+            errors_seen[key] = errors_seen.get(key, 0) + 1
+            if errors_seen[key] == 1:
+                LOG.error("%s update failed: %s: %s\n%s", prefix, key, exc, traceback.format_exc(limit=4))
+            return
+        if output is None:
+            return
+        estimate = output.estimate
+        pose = np.asarray(estimate.pose, dtype=np.float64).reshape(3)
+        stamps.append(float(estimate.stamp))
+        poses.append(pose)
+        first = np.full((metrics.CANDIDATE_K, 3), np.nan)
+        ranked = np.asarray(estimate.candidates, dtype=np.float64).reshape(-1, 3)[: metrics.CANDIDATE_K]
+        first[: len(ranked)] = ranked
+        candidates.append(first)
+        record.statuses.append(estimate.status.value)
+        if estimate.details and truth is not None:
+            base_truth = metrics.interpolate_poses(truth, [estimate.stamp], breaks=reference.kidnap_indices)[0]
+            checked = {**estimate.details, "stamp": estimate.stamp, "lost": estimate.status.value == "LOST"}
+            _details_checks(record, checked, base_truth, pose)
+
+    def on_odom(msg: Any) -> None:
+        try:
+            adapter.on_odom_msg(msg)
+        except Exception as exc:  # noqa: BLE001
+            record.update_errors += 1
+            LOG.error("%s odometry failed: %s: %s", prefix, type(exc).__name__, exc)
+
+    deadline = time.monotonic() + max_seconds if max_seconds else np.inf
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=reference.sensor_counts.get(sensor_topic) or None, desc=prefix, unit="msg", leave=False,
+                   disable=None)
+
+    def on_message(item: BagMessage) -> None:
+        if sample_rss and item.topic == sensor_topic:
+            record.peak_rss_mb = max(record.peak_rss_mb or 0.0, rss_mb())
+            if bar is not None:
+                bar.update(1)
+        if time.monotonic() > deadline:
+            record.truncated = True
+            raise _StopReplay
+
+    handlers = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor}
+    try:
+        replay(reference.path, handlers, on_message=on_message)
+    except _StopReplay:
+        LOG.warning("%s stopped after %.0f s (--max-seconds)", prefix, max_seconds)
+    finally:
+        if bar is not None:
+            bar.close()
+    if sample_rss:
+        record.peak_rss_mb = round(max(record.peak_rss_mb or 0.0, rss_mb()), 1)
+    record.stamps = np.array(stamps, dtype=np.float64)
+    record.poses = np.array(poses, dtype=np.float64).reshape(-1, 3)
+    if candidates and not np.isnan(np.array(candidates)).all():
+        record.candidates = np.array(candidates)
+    record.update_ms = np.array(timed.update_ms, dtype=np.float64)
+    return record
+

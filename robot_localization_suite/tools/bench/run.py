@@ -1,0 +1,150 @@
+"""The benchmark over bags x localizers: plan the pairs, run each, summarize, write the files.
+
+:func:`run_benchmark` replays every bag through every localizer (``summary.json``,
+``summary.md``, plots); :func:`run_global_fixes` asks for single-scan global fixes
+instead. Each pair runs in a child process unless ``isolate`` is false.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from ...core.grid_map import GridMap
+from .global_fixes import global_fix_localizer
+from .isolation import call_guarded
+from .reference import IMAGE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference, load_reference, map_candidates, resolve_map
+from .replay import replay_localizer
+from .specs import LocalizerSpec
+from .summary import summarize_global_fixes, summarize_run
+from .tables import one_line, write_summary
+
+__all__ = ["run_benchmark", "run_global_fixes"]
+
+LOG = logging.getLogger("rls_bench")
+
+
+def _plan(
+    references: Sequence[BagReference], specs: Sequence[LocalizerSpec], *, honour_skips: bool
+) -> Iterator[tuple[BagReference, LocalizerSpec, str | None]]:
+    """Yield ``(reference, spec, skip_reason or None)`` for every pair."""
+    for reference in references:
+        for spec in specs:
+            if spec.uses_camera and not reference.has_camera:
+                yield reference, spec, f"no {IMAGE_TOPIC} in the bag"
+            elif not spec.uses_camera and not reference.has_scan:
+                yield reference, spec, f"no {SCAN_TOPIC} in the bag"
+            elif honour_skips and spec.skip_reason(reference.name):
+                yield reference, spec, spec.skip_reason(reference.name)
+            else:
+                yield reference, spec, None
+
+
+def run_benchmark(
+    bags: Sequence[str | os.PathLike[str]],
+    specs: Sequence[LocalizerSpec],
+    out_dir: str | os.PathLike[str],
+    *,
+    mode: str = "global",
+    map_yaml: str | os.PathLike[str] | None = None,
+    isolate: bool = True,
+    max_seconds: float | None = None,
+    plots: bool = True,
+    honour_skips: bool = False,
+    progress: bool = False,
+    child_progress: bool = False,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots.
+
+    ``progress``: a replay progress bar per run; ``child_progress``: the localizers'
+    own precomputation bars in child runs (off: ``TQDM_DISABLE=1`` for the child).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    references = [load_reference(b) for b in bags]
+    summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
+    maps: dict[str, tuple[GridMap | None, str]] = {}
+    for reference in references:
+        maps[reference.name] = resolve_map(reference, map_yaml)
+        if reference.ground_truth is None:
+            LOG.warning("bag %s has no %s: reporting timing only", reference.name, TRUTH_TOPIC)
+            print(f"rls_bench: bag {reference.name} has no {TRUTH_TOPIC}; reporting timing only", file=sys.stderr)
+    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
+        if skip is not None:
+            summary[reference.name][spec.name] = {"mode": mode, "skipped": skip}
+            continue
+        grid_map, map_source = maps[reference.name]
+        if grid_map is None and not spec.uses_camera:
+            summary[reference.name][spec.name] = {"mode": mode, "error": "no map: give --map, a /map in the bag, "
+                                                  f"or one of {', '.join(str(p) for p in map_candidates(reference.name))}"}
+            continue
+        print(f"rls_bench: {reference.name} / {spec.name} ({mode}) ...", file=sys.stderr, flush=True)
+        kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
+        started = time.perf_counter()
+        status, result = call_guarded(replay_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
+                                      max_seconds=max_seconds, child_progress=child_progress)
+        if status != "ok":
+            LOG.error("[%s/%s] failed: %s", reference.name, spec.name, result)
+            summary[reference.name][spec.name] = {"mode": mode, "error": str(result).splitlines()[0]}
+            continue
+        fields, series = summarize_run(result, reference)
+        fields["map"] = map_source
+        fields["wall_s"] = round(time.perf_counter() - started, 1)
+        summary[reference.name][spec.name] = fields
+        print(f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}", file=sys.stderr, flush=True)
+        if plots:
+            from .plots import plot_run  # matplotlib only when plots are asked for
+
+            plot_run(out / "plots" / reference.name, spec.name, grid_map, reference, result, series)
+    write_summary(out, summary, title=f"rls_bench ({mode} mode)")
+    return summary
+
+
+def run_global_fixes(
+    bags: Sequence[str | os.PathLike[str]],
+    specs: Sequence[LocalizerSpec],
+    out_dir: str | os.PathLike[str],
+    *,
+    every: int = 10,
+    map_yaml: str | os.PathLike[str] | None = None,
+    isolate: bool = True,
+    max_seconds: float | None = None,
+    honour_skips: bool = False,
+    child_progress: bool = False,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary.
+
+    ``child_progress``: as in :func:`run_benchmark`.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    references = [load_reference(b) for b in bags]
+    summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
+    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
+        if skip is not None or spec.uses_camera:
+            continue
+        grid_map, map_source = resolve_map(reference, map_yaml)
+        print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
+              flush=True)
+        kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
+        status, result = call_guarded(global_fix_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
+                                      max_seconds=max_seconds, child_progress=child_progress)
+        if status != "ok":
+            summary[reference.name][spec.name] = {"mode": "global_fixes", "error": str(result).splitlines()[0]}
+            continue
+        if not result.supported:
+            continue
+        if result.error:
+            summary[reference.name][spec.name] = {"mode": "global_fixes", "error": result.error}
+            continue
+        fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
+        summary[reference.name][spec.name] = fields
+        print(f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
+              f"fix {fields['fix_ms_median']} ms", file=sys.stderr, flush=True)
+    write_summary(out, summary, title=f"rls_bench --global-fixes (every {every}th scan)")
+    return summary

@@ -1,0 +1,62 @@
+"""What is benchmarked: a :class:`LocalizerSpec` per localizer.
+
+A spec names a localizer and holds a factory that builds a fresh core localizer; it is
+the injection point for localizers from elsewhere (the tests' echo double).
+:func:`registry_spec` makes the spec of a packaged localizer from its registry plugin.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import functools
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ... import registry
+from ...core.scan import LaserMount
+
+__all__ = ["LocalizerSpec", "registry_spec"]
+
+
+@dataclass(frozen=True)
+class LocalizerSpec:
+    """A localizer as the benchmark sees it.
+
+    Attributes:
+        name: column name in the tables.
+        factory: builds a fresh core localizer (must be picklable for child processes,
+            e.g. a module-level function or ``functools.partial`` of one).
+        uses_camera: fed ``/camera/image_raw`` instead of ``/scan``.
+        mount: laser pose in the base frame (the adapter's mounting offset).
+        skip: bag-name glob -> reason, pairs ``--all`` leaves out.
+    """
+
+    name: str
+    factory: Callable[[], Any]
+    uses_camera: bool = False
+    mount: LaserMount = field(default_factory=LaserMount)
+    skip: Mapping[str, str] = field(default_factory=dict)
+
+    def skip_reason(self, bag_name: str) -> str | None:
+        for pattern, reason in self.skip.items():
+            if fnmatch.fnmatch(bag_name, pattern):
+                return str(reason)
+        return None
+
+
+def _plugin_factory(name: str, settings: Any) -> Any:
+    return registry.plugin(name).create(settings)
+
+
+def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LocalizerSpec:
+    """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``."""
+    plugin = registry.plugin(name)
+    node_settings, settings = plugin.load_settings(overrides)
+    return LocalizerSpec(
+        name=name,
+        factory=functools.partial(_plugin_factory, name, settings),
+        uses_camera=plugin.uses_camera,
+        mount=node_settings.mount,
+        skip=dict(plugin.bench_skip),
+    )
