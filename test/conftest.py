@@ -12,10 +12,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 # Before anything imports rclpy: every process this run starts inherits these.
-from robot_localization_suite.launch.dds import loopback_environment  # noqa: E402
+from robot_localization_suite.launch.dds import use_loopback  # noqa: E402
 
 _DOMAIN_ID = 1 + os.getpid() % 100
-os.environ.update(loopback_environment(domain_id=_DOMAIN_ID, base={}))
+use_loopback(_DOMAIN_ID)
 
 
 @pytest.fixture(scope="session")

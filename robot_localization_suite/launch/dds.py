@@ -1,10 +1,12 @@
 """Keep DDS on loopback: a Fast DDS profile that binds every socket to 127.0.0.1.
 
-``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` alone still binds a socket on the
-external interface (checked here), so tests, the demo and the runners load
-this profile through ``FASTRTPS_DEFAULT_PROFILES_FILE``: UDPv4 whitelisted to
-127.0.0.1 plus shared memory, no builtin transports, 127.0.0.1 as metatraffic
-locator and initial peer.
+Tests, the demo and the runners load this profile through ``FASTRTPS_DEFAULT_PROFILES_FILE``:
+UDPv4 whitelisted to 127.0.0.1 plus shared memory, no builtin transports, 127.0.0.1 as
+metatraffic locator and initial peer. ``ROS_AUTOMATIC_DISCOVERY_RANGE`` and
+``ROS_STATIC_PEERS`` are removed from the environment: with ``LOCALHOST`` on top of the
+profile, rmw_fastrtps binds a UDP socket on 0.0.0.0 and one on the external interface
+(checked with ``ss -uanp``; ../shared/DESIGN.md). README, "DDS on loopback", says how to
+widen it deliberately for a robot network.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["LOOPBACK_PROFILE_XML", "loopback_profile_path", "loopback_environment"]
+__all__ = ["LOOPBACK_PROFILE_XML", "loopback_profile_path", "loopback_environment", "use_loopback"]
 
 LOOPBACK_PROFILE_XML = """<?xml version="1.0" encoding="UTF-8" ?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
@@ -59,6 +61,10 @@ LOOPBACK_PROFILE_XML = """<?xml version="1.0" encoding="UTF-8" ?>
 """
 
 
+# Variables that make rmw_fastrtps open sockets beyond the profile's (see the module docstring).
+_WIDENING = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY")
+
+
 def loopback_profile_path() -> Path:
     """Write the profile once per user into the temp directory and return its path."""
     path = Path(tempfile.gettempdir()) / f"rls_fastdds_loopback_{os.getuid()}.xml"
@@ -75,7 +81,16 @@ def loopback_environment(domain_id: int | None = None, base: dict[str, str] | No
     env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
     env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(loopback_profile_path())
     env["FASTDDS_DEFAULT_PROFILES_FILE"] = env["FASTRTPS_DEFAULT_PROFILES_FILE"]
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    for variable in _WIDENING:
+        env.pop(variable, None)
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
     return env
+
+
+def use_loopback(domain_id: int | None = None) -> None:
+    """Put this process (and every process it starts) on loopback DDS, removing the widening variables."""
+    env = loopback_environment(domain_id)
+    for variable in _WIDENING:
+        os.environ.pop(variable, None)
+    os.environ.update(env)

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core import metrics
 from ..registry import PLUGINS, config_dir
-from .dds import loopback_environment
+from .dds import use_loopback
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
 __all__ = ["DemoMonitor", "LocalizerTrack", "main"]
@@ -343,7 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"[demo] left out (the scenario has no camera): {', '.join(blind)}", flush=True)
     domain_id = args.domain_id if args.domain_id is not None else _default_domain_id()
     # The monitor in this process talks DDS on loopback too, on the nodes' domain.
-    os.environ.update(loopback_environment(domain_id))
+    use_loopback(domain_id)
 
     out_lock = threading.Lock()
 
