@@ -54,8 +54,13 @@ def odometry_delta(previous: ArrayLike, current: ArrayLike) -> OdometryDelta:
     return OdometryDelta(rot1, trans, rot2)
 
 
-def apply_delta(poses: ArrayLike, rot1: ArrayLike, trans: ArrayLike, rot2: ArrayLike) -> NDArray[np.float64]:
-    """Move poses ``(N, 3)`` by (possibly per-pose) rot1, trans, rot2."""
+def apply_delta(
+    poses: ArrayLike,
+    rot1: float | NDArray[np.float64],
+    trans: float | NDArray[np.float64],
+    rot2: float | NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Move poses ``(N, 3)`` by rot1, trans, rot2 [rad, m, rad]: scalars or ``(N,)`` per pose."""
     poses = np.asarray(poses, dtype=np.float64)
     heading = poses[..., 2] + rot1
     out = np.empty_like(poses)

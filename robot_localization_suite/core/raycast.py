@@ -109,7 +109,7 @@ def _cast_parallel(blocking, origin_x, origin_y, resolution, poses, angles, max_
 
 
 def cast_rays(
-    blocking: NDArray[np.bool_],
+    blocking: NDArray[np.bool_] | NDArray[np.uint8],
     resolution: float,
     origin: tuple[float, float],
     poses: ArrayLike,
@@ -121,7 +121,7 @@ def cast_rays(
     """Cast ``len(angles)`` rays from each pose.
 
     Args:
-        blocking: ``(height, width)`` mask of cells that stop a ray (row 0 at the origin).
+        blocking: ``(height, width)`` mask of cells that stop a ray (row 0 at the origin), bool or 0/1 uint8.
         resolution: cell size [m].
         origin: world ``(x, y)`` of the corner of cell (0, 0) [m].
         poses: ``(P, 3)`` or ``(3,)`` ray origins and headings [m, m, rad].

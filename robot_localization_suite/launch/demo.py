@@ -25,9 +25,10 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -36,9 +37,20 @@ from ..registry import PLUGINS, config_dir
 from .dds import use_loopback
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
-__all__ = ["DemoMonitor", "LocalizerTrack", "main"]
+__all__ = ["DemoMonitor", "LocalizerTrack", "SummaryRow", "main"]
 
 DEFAULT_SCENARIO = "office_kidnap"
+
+
+class SummaryRow(TypedDict):
+    """One localizer's line of the final summary (None: nothing to measure)."""
+
+    localizer: str
+    outputs: int
+    scored: int
+    correct_rate: float | None
+    median_error_m: float | None  # [m]
+    median_update_ms: float | None  # [ms]
 
 
 @dataclass
@@ -159,9 +171,9 @@ class DemoMonitor:
                 lines.append(f"{'':12}{track.name:<{width}} {_pose_text(track.last_pose)}  {error}  {track.status}")
             return lines
 
-    def summary_rows(self) -> list[dict[str, object]]:
+    def summary_rows(self) -> list[SummaryRow]:
         self.match_pending(final=True)
-        rows = []
+        rows: list[SummaryRow] = []
         with self._lock:
             for track in self.tracks.values():
                 dxy, dtheta = np.array(track.errors_xy), np.array(track.errors_theta)
@@ -221,18 +233,19 @@ class MonitorNode:
         self.node.create_subscription(
             Odometry, "/ground_truth", lambda msg: monitor.on_truth(*odometry_from_msg(msg)), truth_qos
         )
-        self.node.create_subscription(
-            OccupancyGrid, "/map", lambda msg: monitor.on_map_stamp(stamp_to_seconds(msg.header.stamp)), MAP_QOS
-        )
-        for name in monitor.tracks:
-            self.node.create_subscription(
-                PoseWithCovarianceStamped,
-                f"/{name}/pose",
-                lambda msg, name=name: monitor.on_estimate(
-                    name, stamp_to_seconds(msg.header.stamp), pose_from_pose_msg(msg.pose.pose)
-                ),
-                RELIABLE_QOS,
+
+        # Typed callbacks: the message packages ship no types, so rclpy cannot infer the message type.
+        def on_map(msg: Any) -> None:
+            monitor.on_map_stamp(stamp_to_seconds(msg.header.stamp))
+
+        def on_pose(name: str) -> Callable[[Any], None]:
+            return lambda msg: monitor.on_estimate(
+                name, stamp_to_seconds(msg.header.stamp), pose_from_pose_msg(msg.pose.pose)
             )
+
+        self.node.create_subscription(OccupancyGrid, "/map", on_map, MAP_QOS)
+        for name in monitor.tracks:
+            self.node.create_subscription(PoseWithCovarianceStamped, f"/{name}/pose", on_pose(name), RELIABLE_QOS)
         diagnostics_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, diagnostics_qos)
         self.node.create_timer(period_s, lambda: [print_line(line) for line in monitor.progress_lines()])

@@ -122,6 +122,9 @@ class LocalizerAdapter:
         max_candidates: int = 2000,
     ) -> None:
         self.localizer = localizer
+        # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
+        self._laser: Localizer | None = localizer if isinstance(localizer, Localizer) else None
+        self._camera: CameraLocalizer | None = localizer if isinstance(localizer, CameraLocalizer) else None
         self.max_candidates = max_candidates
         self.node_name = node_name
         self.log = ThrottledLog(log)
@@ -210,7 +213,10 @@ class LocalizerAdapter:
             self.log("info", "beam_count", f"beam count changed from {self._last_beam_count} to {scan.beam_count}")
         self._last_beam_count = scan.beam_count
         self._last_scan_stamp = scan.stamp
-        return self._run(lambda: self.localizer.on_scan(scan))
+        laser = self._laser
+        if laser is None:
+            raise TypeError(f"{type(self.localizer).__name__} is not a laser Localizer: it cannot take scans")
+        return self._run(lambda: laser.on_scan(scan))
 
     def on_image_msg(self, msg: Any) -> AdapterOutput | None:
         try:
@@ -219,7 +225,10 @@ class LocalizerAdapter:
             self.log("warn", "bad_image", f"skipping image: {exc}")
             return None
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
-        return self._run(lambda: self.localizer.on_image(stamp, image))
+        camera = self._camera
+        if camera is None:
+            raise TypeError(f"{type(self.localizer).__name__} is not a CameraLocalizer: it cannot take images")
+        return self._run(lambda: camera.on_image(stamp, image))
 
     # -- outputs ------------------------------------------------------------------
     def _run(self, update: Callable[[], Estimate | None]) -> AdapterOutput | None:

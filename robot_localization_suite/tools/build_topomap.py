@@ -118,7 +118,7 @@ def build_topomap(
     if scenario.camera is None:
         raise ScenarioError(f"scenario {scenario.name!r} has no camera section: no snapshots can be taken")
     settings = settings or ImaSettings(width=144, height=116, slots=15, clahe=True, zoom=1.0)
-    camera = CameraRenderer(scenario.grid_map, **scenario.camera.renderer_arguments())
+    camera = CameraRenderer(scenario.grid_map, **scenario.camera.renderer_arguments(), **dict(scenario.camera.extra))
     hfov = float(scenario.camera.hfov_deg)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 2024]))
     topo_nodes, panoramas, report = [], [], []
@@ -141,6 +141,8 @@ def build_topomap(
                 best = (worst, attempt, turns, built)
             if worst >= min_insert_match:
                 break
+        if best is None:
+            raise ValueError(f"attempts must be at least 1, got {attempts!r}")
         worst, attempt, turns, built = best
         topo_nodes.append(TopoNode(name, x, y, f"{name}.png", heading_ref))
         panoramas.append(built.panorama)

@@ -32,6 +32,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from ..core.errors import MapError
 from ..core.grid_map import GridMap, load_map_yaml
 from ..core.ial.kernels import contract_box, obstacle_hull
 from ..core.ial.localizer import IALSettings, IntervalLocalizer, ObstacleGrid, beam_intervals, boxes_contain
@@ -164,6 +165,8 @@ def measure(grid_map: GridMap, *, trials: int, beams: int, range_error: float, o
 
         # One contraction per box, many boxes per call: the per-box cost without Python's dispatch.
         grid = localizer.obstacles
+        if grid is None:  # built by IntervalLocalizer(settings, grid_map) above
+            raise MapError("the interval localizer has no obstacle grid although it was given a map")
         probes = box + rng.uniform(-0.02, 0.02, (200, 6))
         probes[:, 0::2], probes[:, 1::2] = np.minimum(probes[:, 0::2], probes[:, 1::2]), np.maximum(
             probes[:, 0::2], probes[:, 1::2])

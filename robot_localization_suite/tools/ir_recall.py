@@ -61,7 +61,7 @@ def load_bag_scans(bag: Path) -> tuple[list[Scan], NDArray[np.float64], GridMap 
             truth_poses.append(pose)
         elif message.topic == "/map" and grid_map is None:
             grid_map = conversions.grid_map_from_msg(message.msg)
-    truths = np.full((len(scans), 3), np.nan)
+    truths: NDArray[np.float64] = np.full((len(scans), 3), np.nan)
     if truth_stamps:
         order = np.argsort(truth_stamps)
         trajectory = metrics.Trajectory(np.asarray(truth_stamps)[order], np.asarray(truth_poses).reshape(-1, 3)[order])
@@ -184,6 +184,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ..registry import config_dir, plugin
 
     node_settings, settings = plugin("ir_initializer").load_settings(_parse_overrides(options.set))
+    if not isinstance(settings, IRSettings):
+        raise TypeError(f"the ir_initializer plugin gave {type(settings).__name__} settings, not IRSettings")
     mount = node_settings.mount
     results = {}
     for bag in options.bags:

@@ -46,7 +46,7 @@ def apply_clahe(grey: NDArray[np.uint8], settings: ImaSettings, *, tile_px: tupl
     else:
         grid = (max(1, round(width / tile_px[0])), max(1, round(height / tile_px[1])))
     clahe = cv2.createCLAHE(clipLimit=settings.clahe_clip_limit, tileGridSize=grid)
-    return clahe.apply(grey)
+    return np.asarray(clahe.apply(grey), dtype=np.uint8)  # uint8 in, uint8 out: no copy
 
 
 @functools.lru_cache(maxsize=32)
@@ -63,11 +63,12 @@ def _cylindrical_maps(width: int, height: int, hfov_deg: float) -> tuple[NDArray
 
 
 def _to_working(grey: NDArray[np.uint8], width: int, height: int, hfov_deg: float, cylindrical: bool) -> NDArray[np.uint8]:
-    small = cv2.resize(grey, (width, height), interpolation=cv2.INTER_AREA)
+    # cv2 keeps the uint8 depth; the asarray calls only state it for the type checker (no copy).
+    small = np.asarray(cv2.resize(grey, (width, height), interpolation=cv2.INTER_AREA), dtype=np.uint8)
     if not cylindrical:
         return small
     map_x, map_y = _cylindrical_maps(width, height, float(hfov_deg))
-    return cv2.remap(small, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return np.asarray(cv2.remap(small, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), dtype=np.uint8)
 
 
 def preprocess(image: ArrayLike, settings: ImaSettings, hfov_deg: float) -> NDArray[np.float32]:

@@ -101,7 +101,7 @@ def build_panorama(
     left, _used = settings.used_columns
     aligned = np.zeros((settings.height, width_ref), dtype=np.float32)
     filled = np.zeros(width_ref, dtype=bool)
-    mosaic = np.zeros((settings.height, width_ref), dtype=np.uint8)
+    mosaic: NDArray[np.uint8] = np.zeros((settings.height, width_ref), dtype=np.uint8)
     columns, matches = [], []
     for snapshot in snapshots:
         processed = preprocess(snapshot, settings, hfov_deg)

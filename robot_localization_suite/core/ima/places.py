@@ -66,7 +66,8 @@ class PanoramaBank:
         prepared = []
         for panorama in panoramas:
             grey = to_grey(panorama)
-            small = cv2.resize(grey, (self.width, settings.height), interpolation=cv2.INTER_AREA)
+            resized = cv2.resize(grey, (self.width, settings.height), interpolation=cv2.INTER_AREA)
+            small = np.asarray(resized, dtype=np.uint8)  # uint8 already: states it for the type checker, no copy
             if settings.clahe:
                 small = apply_clahe(small, settings, tile_px=(round(tile[0]), round(tile[1])))
             prepared.append(small.astype(np.float32))

@@ -127,7 +127,7 @@ def load_topomap(yaml_path: str | os.PathLike[str]) -> TopologicalMap:
         if pixels is None or pixels.size == 0:
             raise MapError(f"topological map {str(path)!r}{where}: panorama file {str(image_path)!r} is not an image")
         nodes.append(TopoNode(name, x, y, file_name, ref))
-        panoramas.append(pixels)
+        panoramas.append(np.asarray(pixels, dtype=np.uint8))  # IMREAD_GRAYSCALE gives uint8: no copy
     source = meta.get("source", {})
     return TopologicalMap(nodes, hfov, panoramas, source if isinstance(source, dict) else {})
 

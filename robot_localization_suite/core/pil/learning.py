@@ -82,7 +82,7 @@ class TileGrid:
     @property
     def inverse_matrix(self) -> NDArray[np.float64]:
         """``M^-1``: image ``(L, C)`` back to world ``(x, y)`` (equation 5)."""
-        return np.linalg.inv(self.matrix)
+        return np.linalg.inv(self.matrix).astype(np.float64, copy=False)  # float64 already: no copy
 
     def world_to_image(self, xy: ArrayLike) -> NDArray[np.float64]:
         """Continuous ``(L, C)`` ``(..., 2)`` of world points ``(..., 2)``."""
@@ -312,7 +312,7 @@ def learn_pseudo_images(
     valid = grid_map.is_free(centres)
     if not valid.any():
         raise MapError(f"no PIL tile of {tile_size} m has its centre in free space on this map")
-    lines, columns, centres = lines[valid].astype(np.int32), columns[valid].astype(np.int32), centres[valid]
+    tile_lines, tile_columns, centres = lines[valid].astype(np.int32), columns[valid].astype(np.int32), centres[valid]
     caster = RayCaster(grid_map, max_range=max_range, unknown_blocks=unknown_blocks)
     angles = np.arange(angle_count) * (2.0 * np.pi / angle_count)
     poses = np.column_stack([centres, np.zeros(len(centres))])
@@ -325,7 +325,7 @@ def learn_pseudo_images(
             np.minimum(ranges, max_range, out=ranges)  # inf (no hit within R) reads R
             ranges_mm[chunk] = np.rint(ranges * _MM_PER_M).astype(np.uint16)
             bar.update(chunk.stop - chunk.start)
-    learning = PilLearning(grid, lines, columns, centres, ranges_mm, float(max_range), key)
+    learning = PilLearning(grid, tile_lines, tile_columns, centres, ranges_mm, float(max_range), key)
     if use_cache:
         try:
             _save_cache(path, learning)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import TypedDict
 
 import cv2
 import numpy as np
@@ -28,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..grid_map import GridMap
 from ..raycast import RayCaster
 
-__all__ = ["CameraSettings", "CameraRenderer", "ENCODINGS", "WALL_PHOTOGRAPHS", "texture_atlas"]
+__all__ = ["CameraSettings", "CameraRenderer", "ENCODINGS", "WALL_PHOTOGRAPHS", "TextureAtlas", "texture_atlas"]
 
 ENCODINGS = ("mono8", "rgb8")
 
@@ -144,8 +145,8 @@ def _photograph(name: str) -> NDArray[np.float32]:
         pixels = pixels.astype(np.uint8) * 255
     if pixels.ndim == 2:
         pixels = np.repeat(pixels[:, :, None], 3, axis=2)
-    pixels = pixels[:, :, :3].astype(np.float32)
-    return pixels / 255.0 if pixels.max() > 1.0 else pixels
+    rgb = pixels[:, :, :3].astype(np.float32)
+    return (rgb / 255.0).astype(np.float32, copy=False) if rgb.max() > 1.0 else rgb  # float32 already: no copy
 
 
 def _pyramid(tiles: NDArray[np.float32]) -> tuple[NDArray[np.float32], ...]:
@@ -162,8 +163,16 @@ def _pyramid(tiles: NDArray[np.float32]) -> tuple[NDArray[np.float32], ...]:
     return tuple(levels)
 
 
+class TextureAtlas(TypedDict):
+    """What :func:`texture_atlas` returns: float32 RGB in [0, 1]."""
+
+    walls: tuple[NDArray[np.float32], ...]  # mip levels of the (K, H, W, 3) wall tiles
+    carpet: NDArray[np.float32]  # (H, W) floor texture
+    persons: NDArray[np.float32]  # (2, H, W, 3) person tiles
+
+
 @functools.lru_cache(maxsize=4)
-def texture_atlas(texture_seed: int) -> dict[str, object]:
+def texture_atlas(texture_seed: int) -> TextureAtlas:
     """Wall tiles (with mip levels), the floor carpet and the person tiles for one seed.
 
     Wall tiles are crops of :data:`WALL_PHOTOGRAPHS` with the tile's aspect
@@ -183,7 +192,7 @@ def texture_atlas(texture_seed: int) -> dict[str, object]:
         top = int(rng.integers(0, rows - crop_h + 1))
         left = int(rng.integers(0, cols - crop_w + 1))
         crop = photo[top : top + crop_h, left : left + crop_w]
-        tile = cv2.resize(crop, (_TILE_WIDTH, _TILE_HEIGHT), interpolation=cv2.INTER_AREA)
+        tile = np.asarray(cv2.resize(crop, (_TILE_WIDTH, _TILE_HEIGHT), interpolation=cv2.INTER_AREA), dtype=np.float32)
         low, high = np.percentile(tile, [1.0, 99.0])
         tile = (tile - low) / max(high - low, 1e-3)
         tiles[k] = 0.12 + 0.80 * np.clip(tile, 0.0, 1.0)
@@ -196,7 +205,7 @@ def texture_atlas(texture_seed: int) -> dict[str, object]:
     return {"walls": _pyramid(tiles), "carpet": carpet, "persons": persons}
 
 
-def _hash(*keys: NDArray[np.int64]) -> NDArray[np.uint64]:
+def _hash(*keys: NDArray[np.int64] | np.int64) -> NDArray[np.uint64]:
     """A vectorised integer hash (splitmix64 finaliser over a combination of the keys)."""
     with np.errstate(over="ignore"):
         h = np.zeros(np.broadcast_shapes(*(np.shape(k) for k in keys)), dtype=np.uint64)
@@ -253,8 +262,8 @@ class CameraRenderer:
             luminance = array @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
             return np.ascontiguousarray(luminance[..., None])
 
-        self._walls = tuple(colour(level) for level in atlas["walls"])  # type: ignore[union-attr]
-        self._persons = colour(atlas["persons"])  # type: ignore[arg-type]
+        self._walls = tuple(colour(level) for level in atlas["walls"])
+        self._persons = colour(atlas["persons"])
         self._carpet = np.asarray(atlas["carpet"], dtype=np.float32)
         s = self.settings
         self._focal = s.focal_px
@@ -335,7 +344,7 @@ class CameraRenderer:
 
         # Heights z [m] seen by each pixel at the wall's depth: z = h_cam + row * depth / f.
         z_wall = s.camera_height + rows[:, None] * depth[None, :] / focal  # (H, W)
-        image = np.empty((s.height, columns, channels), dtype=np.float32)
+        image: NDArray[np.float32] = np.empty((s.height, columns, channels), dtype=np.float32)
 
         # Floor and ceiling: the world point seen by each pixel above / below the wall.
         with np.errstate(divide="ignore", invalid="ignore"):

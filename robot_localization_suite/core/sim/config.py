@@ -10,7 +10,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ __all__ = [
     "LaserConfig",
     "OdometryConfig",
     "CameraConfig",
+    "RendererArguments",
     "Person",
     "Kidnapping",
     "Waypoint",
@@ -231,6 +232,17 @@ class OdometryConfig:
         finite_value("odometry.heading_drift", self.heading_drift)
 
 
+class RendererArguments(TypedDict):
+    """The named keyword arguments of ``CameraRenderer``; the others come from ``CameraConfig.extra``."""
+
+    hfov_deg: float
+    width: int
+    height: int
+    lighting_variation: float
+    texture_seed: int
+    encoding: str
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """A camera rendered from the textured map by ``core.camera.CameraRenderer``.
@@ -270,8 +282,8 @@ class CameraConfig:
         if self.encoding not in CAMERA_ENCODINGS:
             raise ScenarioError(f"camera.encoding must be one of {CAMERA_ENCODINGS}, got {self.encoding!r}")
 
-    def renderer_arguments(self) -> dict[str, object]:
-        """Keyword arguments of ``CameraRenderer(grid_map, **arguments)``."""
+    def renderer_arguments(self) -> RendererArguments:
+        """Named keyword arguments of ``CameraRenderer(grid_map, **arguments, **dict(config.extra))``."""
         return {
             "hfov_deg": self.hfov_deg,
             "width": self.width,
@@ -279,7 +291,6 @@ class CameraConfig:
             "lighting_variation": self.lighting_variation,
             "texture_seed": self.texture_seed,
             "encoding": self.encoding,
-            **dict(self.extra),
         }
 
 

@@ -32,7 +32,7 @@ from .config import (
     pose_value,
     positive_value,
 )
-from .trajectory import Trajectory, integrate_motion
+from .trajectory import IntegratedMotion, Trajectory, integrate_motion
 
 __all__ = ["Scenario"]
 
@@ -92,7 +92,7 @@ class Scenario:
             self._check_trajectory()
 
     # -- validation helpers -----------------------------------------------------------
-    def clearance(self, xy: Sequence[float]) -> float:
+    def clearance(self, xy: Sequence[float] | NDArray[np.float64]) -> float:
         """Distance [m] from a point to the nearest obstacle or unknown cell; -1 off the map or not free."""
         cell = self.grid_map.world_to_cell(np.asarray(xy[:2], dtype=np.float64))
         if not bool(self.grid_map.in_bounds(cell)):
@@ -127,6 +127,8 @@ class Scenario:
             if waypoint.is_wait:
                 non_negative_value(f"motion.waypoints[{index}].wait", waypoint.wait)
                 continue
+            if waypoint.x is None or waypoint.y is None:
+                raise ScenarioError(f"motion.waypoints[{index}] needs both x and y, got {waypoint!r}")
             if not (x0 <= waypoint.x < x1 and y0 <= waypoint.y < y1):
                 raise ScenarioError(
                     f"motion.waypoints[{index}] [{waypoint.x}, {waypoint.y}] is off the map "
@@ -197,7 +199,7 @@ class Scenario:
         return len(self.trajectory.times)
 
     # -- the true trajectory ------------------------------------------------------------------
-    def _integrate(self) -> tuple[NDArray[np.float64], ...]:
+    def _integrate(self) -> IntegratedMotion:
         """The integrated motion (:func:`.trajectory.integrate_motion`), computed once."""
         cached = self.__dict__.get("_integrated")
         if cached is None:

@@ -151,7 +151,7 @@ class OdometrySimulator:
     def __init__(self, config: OdometryConfig, rng: np.random.Generator) -> None:
         self.config = config
         self.rng = rng
-        self.pose = np.zeros(3)
+        self.pose: NDArray[np.float64] = np.zeros(3)  # [m, m, rad]
         self._model = OdometryMotionModel(config.alpha1, config.alpha2, config.alpha3, config.alpha4)
 
     def step(self, true_previous: NDArray[np.float64], true_current: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -163,6 +163,7 @@ class OdometrySimulator:
         # Systematic drift: wrong wheel diameter (scale) and wheel base (heading per metre).
         trans = delta.trans * (1.0 + config.scale_error)
         rot2 = delta.rot2 + config.heading_drift * delta.trans
+        rel: NDArray[np.float64]
         if config.model == "alphas":
             origin = np.zeros(3)
             drifted = apply_delta(origin, delta.rot1, trans, rot2)
@@ -213,7 +214,7 @@ class Simulator:
         self._next_image_index = 0
         self._trajectory = scenario.trajectory if scenario.motion is not None else None
         self.index = -1
-        self.true_pose = np.array(scenario.start, dtype=np.float64)
+        self.true_pose: NDArray[np.float64] = np.array(scenario.start, dtype=np.float64)
         self._last_odom = self._odometry.pose.copy()
 
     # -- properties ---------------------------------------------------------------------------
@@ -251,7 +252,7 @@ class Simulator:
         except ImportError as exc:
             raise ScenarioError(f"the scenario has a camera but the camera renderer cannot be loaded: {exc}") from exc
         try:
-            return CameraRenderer(self.scenario.grid_map, **config.renderer_arguments())
+            return CameraRenderer(self.scenario.grid_map, **config.renderer_arguments(), **dict(config.extra))
         except (TypeError, ValueError) as exc:
             raise ScenarioError(f"camera: {exc}") from exc
 
@@ -279,7 +280,8 @@ class Simulator:
                 motion_end = self._trajectory.motion_end[k]
                 self.true_pose = self._trajectory.poses[k].copy()
                 kidnapped = bool(self._trajectory.kidnapped[k])
-                velocity = tuple(float(v) for v in self._trajectory.velocities[k])
+                row = self._trajectory.velocities[k]
+                velocity = (float(row[0]), float(row[1]))
             else:  # past the end: stand still
                 motion_end = previous
                 velocity = (0.0, 0.0)
@@ -334,9 +336,10 @@ class Simulator:
         """One noisy scan ``(beams,)`` from ``laser_pose`` with ``people`` ``(K, 3)`` in the world."""
         laser = self.scenario.laser
         pose = np.asarray(laser_pose, dtype=np.float64)
+        circles = np.asarray(people, dtype=np.float64)  # no copy for the (K, 3) float64 of people_at
         exact = self._raycaster.cast(pose, self.angles).astype(np.float64)
-        if len(people):
-            exact = np.minimum(exact, ray_circle_ranges(pose[:2], pose[2] + self.angles, people))
+        if len(circles):
+            exact = np.minimum(exact, ray_circle_ranges(pose[:2], pose[2] + self.angles, circles))
         return apply_range_noise(
             exact,
             range_min=laser.range_min,
@@ -358,9 +361,9 @@ class Simulator:
         self._next_image_index = int(math.floor(time * config.rate_hz + 1e-9)) + 1
         image = np.asarray(self._camera.render(self.true_pose, people, self._camera_rng), dtype=np.uint8)
         if config.encoding == "mono8" and image.ndim == 3:
-            image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+            image = np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), dtype=np.uint8)  # uint8 stays uint8: no copy
         elif config.encoding == "rgb8" and image.ndim == 2:
-            image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+            image = np.asarray(cv2.cvtColor(image, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
         return image
 
     # -- conversions ------------------------------------------------------------------------------

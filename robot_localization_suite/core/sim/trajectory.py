@@ -16,10 +16,15 @@ from numpy.typing import NDArray
 from ..se2 import angle_difference, wrap_angle
 from .config import Kidnapping, MotionPlan
 
-__all__ = ["Trajectory", "integrate_unicycle", "integrate_motion"]
+__all__ = ["Trajectory", "IntegratedMotion", "integrate_unicycle", "integrate_motion"]
 
 # Longest integration sub-step of the true motion [s].
 _MAX_SUBSTEP = 0.01
+
+# What integrate_motion returns: dense times, dense poses, step poses, step motion end, step velocity
+# (all float64) and step kidnapped (bool).
+_F64 = NDArray[np.float64]
+IntegratedMotion = tuple[_F64, _F64, _F64, _F64, _F64, NDArray[np.bool_]]
 
 
 @dataclass(frozen=True)
@@ -106,7 +111,7 @@ class _WaypointFollower:
                     continue
                 target = math.atan2(offset[1], offset[0])
                 pose, left = self._turn(pose, target, left)
-                if abs(angle_difference(target, pose[2])) < 1e-12:
+                if abs(float(angle_difference(target, pose[2]))) < 1e-12:
                     pose[2] = target
                     self.phase = "drive"
                 continue
@@ -127,7 +132,7 @@ class _WaypointFollower:
                     self._next()
                     continue
                 pose, left = self._turn(pose, waypoint.yaw, left)
-                if abs(angle_difference(waypoint.yaw, pose[2])) < 1e-12:
+                if abs(float(angle_difference(waypoint.yaw, pose[2]))) < 1e-12:
                     pose[2] = float(wrap_angle(waypoint.yaw))
                     self._next()
         return pose, driven
@@ -151,7 +156,7 @@ def integrate_motion(
     kidnappings: Sequence[Kidnapping],
     period: float,
     duration: float | None,
-) -> tuple[NDArray[np.float64], ...]:
+) -> IntegratedMotion:
     """Integrate the motion at sub-steps until it ends (or the duration passes).
 
     Returns ``(dense_times, dense_poses, step_poses, step_motion_end, step_velocity, step_kidnapped)``.
@@ -165,7 +170,8 @@ def integrate_motion(
     segment_ends = np.cumsum([s.duration for s in motion.segments])
     pose = np.array(start, dtype=np.float64)
     dense_times, dense_poses = [0.0], [pose.copy()]
-    step_poses, step_end, step_vel, step_kidnapped = [pose.copy()], [pose.copy()], [np.zeros(2)], [False]
+    step_vel: list[NDArray[np.float64]] = [np.zeros(2)]
+    step_poses, step_end, step_kidnapped = [pose.copy()], [pose.copy()], [False]
     next_kidnap = 0
     k = 0
     while True:
@@ -206,7 +212,7 @@ def integrate_motion(
         step_end.append(motion_end)
         step_vel.append(np.array([driven / dt, turned / dt]))
         step_kidnapped.append(kidnapped)
-    result = (
+    result: IntegratedMotion = (
         np.asarray(dense_times),
         np.asarray(dense_poses),
         np.asarray(step_poses),
