@@ -1,6 +1,7 @@
 """Turn a corrected CARMEN log into a rosbag2 MCAP bag and an occupancy map.
 
     carmen_to_bag LOG OUT_DIR [--map-out MAP_YAML] [--alpha1 A] ... [--seed S] [--resolution 0.05]
+    carmen_to_bag LOG OUT_DIR --blocks K [--name NAME]     (cross-validation split, tools/carmen_cv.py)
 
 Input: a (gzipped) corrected CARMEN log (Radish datasets). Only ``FLASER``
 lines are used; their format (CARMEN ``logtools``, old-style front laser) is
@@ -474,16 +475,31 @@ def convert_log(
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .carmen_cv import MIN_BLOCK_SCANS, NEAR_PATH_M
+
     defaults = ConversionSettings()
     parser = argparse.ArgumentParser(
         prog="carmen_to_bag",
         description="Convert a corrected CARMEN log (FLASER lines) into a rosbag2 MCAP bag with /scan, /odom, "
-        "/ground_truth and /map, and save the occupancy map built from it.",
+        "/ground_truth and /map, and save the occupancy map built from it. With --blocks K, cut it instead "
+        "into K cross-validation blocks, each a bag with a map built from the other K-1 blocks only.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("log", type=Path, help="CARMEN log, plain or .gz")
-    parser.add_argument("out_dir", type=Path, help="bag directory to create")
+    parser.add_argument("out_dir", type=Path, help="bag directory to create (with --blocks: the output directory)")
     parser.add_argument("--map-out", type=Path, default=None, help="also save the map as this nav2 YAML (+ .pgm)")
+    parser.add_argument(
+        "--blocks", type=int, default=None, metavar="K",
+        help="cross-validation split: K contiguous blocks of equal scan counts (by scan index, the first "
+        "blocks one scan longer when K does not divide the count). Writes OUT_DIR/<name>_cv<k>of<K>/ (the "
+        "block's scans; its /map is the block's map), OUT_DIR/<name>_cv<k>of<K>.yaml + .png (map from the other "
+        f"K-1 blocks), OUT_DIR/<name>_full.yaml + .png (map from all scans) and the index OUT_DIR/<name>_cv.yaml. "
+        f"Odometry is the whole log's seeded stream restricted to each block. A block of fewer than "
+        f"{MIN_BLOCK_SCANS} scans is skipped; a map with no free cell within {NEAR_PATH_M:g} m of the block's "
+        "path is refused; exit status 1 only if no block was written",
+    )
+    parser.add_argument("--name", default=None,
+                        help="with --blocks: file name prefix (default: the log's name without -corrected.log.gz)")
     for index, default in enumerate(defaults.alphas, start=1):
         meaning = ("rotation from rotation", "rotation from translation", "translation from translation",
                    "translation from rotation")[index - 1]
@@ -507,6 +523,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.blocks is not None and args.map_out is not None:
+        parser.error("--map-out does not go with --blocks (the whole-log map is OUT_DIR/<name>_full.yaml)")
     try:
         settings = ConversionSettings(
             alphas=(args.alpha1, args.alpha2, args.alpha3, args.alpha4),
@@ -517,6 +535,13 @@ def main(argv: list[str] | None = None) -> int:
             no_return_tolerance=args.no_return_tolerance,
             map_max_range=args.map_max_range,
         )
+        if args.blocks is not None:
+            from .carmen_cv import split_log
+
+            split = split_log(args.log, args.out_dir, args.blocks, name=args.name, settings=settings,
+                              overwrite=args.overwrite)
+            print(split.summary())
+            return 0 if split.written() else 1
         report = convert_log(args.log, args.out_dir, map_out=args.map_out, settings=settings, overwrite=args.overwrite)
     except (ValueError, LocalizationSuiteError) as exc:
         print(f"carmen_to_bag: error: {exc}", file=sys.stderr)
