@@ -95,7 +95,8 @@ class CvBlock:
 
     @property
     def label(self) -> str:
-        return f"block {self.block} of {self.blocks} (scans {self.scan_range[0]}-{self.scan_range[1] - 1})"
+        first, stop = self.scan_range
+        return f"block {self.block} of {self.blocks} ({f'scans {first}-{stop - 1}' if stop > first else 'no scan'})"
 
 
 @dataclass(frozen=True)

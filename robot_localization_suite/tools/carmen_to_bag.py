@@ -496,10 +496,10 @@ def _parser() -> argparse.ArgumentParser:
         f"K-1 blocks), OUT_DIR/<name>_full.yaml + .png (map from all scans) and the index OUT_DIR/<name>_cv.yaml. "
         f"Odometry is the whole log's seeded stream restricted to each block. A block of fewer than "
         f"{MIN_BLOCK_SCANS} scans is skipped; a map with no free cell within {NEAR_PATH_M:g} m of the block's "
-        "path is refused; exit status 1 only if no block was written",
+        "path is refused; exit status 1 only if no block was written. None: convert the whole log",
     )
     parser.add_argument("--name", default=None,
-                        help="with --blocks: file name prefix (default: the log's name without -corrected.log.gz)")
+                        help="with --blocks: file name prefix; None: the log's file name without -corrected.log.gz")
     for index, default in enumerate(defaults.alphas, start=1):
         meaning = ("rotation from rotation", "rotation from translation", "translation from translation",
                    "translation from rotation")[index - 1]
