@@ -8,12 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from carmen_world import corridor_poses, write_log
 
 from robot_localization_suite.core.grid_map import load_map_yaml
 from robot_localization_suite.core.motion import odometry_delta
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.bag import bag_topics, read_bag
-from robot_localization_suite.tools import carmen_to_bag
+from robot_localization_suite.tools import carmen_log, carmen_to_bag
 from robot_localization_suite.tools.carmen_to_bag import CarmenLogError, ConversionSettings, convert_log
 
 INTEL_LOG = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
@@ -188,3 +189,101 @@ def test_settings_refuse_bad_values():
         ConversionSettings(resolution=0.0)
     with pytest.raises(ValueError, match="alpha1..alpha4"):
         ConversionSettings(alphas=(0.1, -1.0, 0.1, 0.1))
+
+
+# -- timestamps: every problem said out loud -------------------------------------------------------
+def stamp_choice(tmp_path, period: float = 0.5, **stamps) -> carmen_log.StampChoice:
+    """The stamps and warnings of a 40-scan corridor log with the given stamp columns."""
+    log_path = write_log(tmp_path / "stamps.log", corridor_poses(40), **stamps)
+    return carmen_log.choose_stamps(carmen_log.parse_carmen_log(log_path).scans, period)
+
+
+def good_stamps(count: int = 40) -> np.ndarray:
+    return 100.0 + 0.2 * np.arange(count)
+
+
+def test_clean_stamps_are_used_as_they_are_without_a_warning(tmp_path):
+    choice = stamp_choice(tmp_path, stamps=good_stamps())
+    assert choice.source == "FLASER ipc_timestamp" and choice.warnings == ()
+    assert choice.stamps == pytest.approx(good_stamps())
+
+
+def test_missing_stamps_everywhere_fall_back_to_the_period_and_say_so(tmp_path):
+    choice = stamp_choice(tmp_path, stamps=np.zeros(40))
+    assert choice.source == "--period"
+    assert choice.stamps == pytest.approx(0.5 * np.arange(1, 41))
+    assert choice.warnings[0] == "40 of 40 scans have no FLASER ipc_timestamp (0)"
+    assert choice.warnings[-1] == "no usable timestamps: assuming one scan every 0.5 s (--period)"
+
+
+def test_a_few_missing_or_negative_stamps_are_filled_in_between_their_neighbours(tmp_path):
+    stamps = good_stamps()
+    stamps[[5, 6]] = 0.0
+    stamps[20] = -3.0
+    choice = stamp_choice(tmp_path, stamps=stamps)
+    assert choice.source == "FLASER ipc_timestamp"
+    assert choice.stamps == pytest.approx(good_stamps())  # linear in the scan index between 4 and 7, 19 and 21
+    assert choice.warnings == (
+        "2 of 40 scans have no FLASER ipc_timestamp (0); filled in linearly between the scans around them",
+        "1 of 40 scans have a negative FLASER ipc_timestamp; filled in linearly between the scans around them",
+    )
+
+
+def test_stamps_rounded_to_whole_seconds_are_spread_over_their_second(tmp_path):
+    choice = stamp_choice(tmp_path, stamps=np.floor(good_stamps()))  # 5 scans a second, fraction lost
+    assert choice.source == "FLASER ipc_timestamp"
+    assert choice.warnings == ("40 of 40 FLASER ipc_timestamp values are whole seconds (rounded); "
+                               "scans sharing a second are spread evenly over it",)
+    assert choice.stamps == pytest.approx(good_stamps())  # 100.0, 100.2, ... exactly as before rounding
+
+
+def test_stamps_that_step_back_are_nudged_and_counted(tmp_path):
+    stamps = good_stamps()
+    stamps[10] = stamps[9] - 0.3
+    choice = stamp_choice(tmp_path, stamps=stamps)
+    assert choice.warnings == ("1 of 39 steps of FLASER ipc_timestamp do not increase (largest step back 0.3 s); "
+                               "each moved 1 ms after the one before",)
+    assert choice.stamps[10] == pytest.approx(stamps[9] + 1e-3)
+    assert np.all(np.diff(choice.stamps) > 0)
+
+
+def test_unusable_ipc_stamps_fall_back_to_the_logger_timestamp(tmp_path):
+    choice = stamp_choice(tmp_path, stamps=np.zeros(40), logger_stamps=good_stamps())
+    assert choice.source == "FLASER logger_timestamp"
+    assert choice.stamps == pytest.approx(good_stamps())
+    assert choice.warnings == ("40 of 40 scans have no FLASER ipc_timestamp (0)",
+                               "FLASER ipc_timestamp not usable: using the times of the FLASER logger_timestamp "
+                               "instead")
+
+
+def test_unusable_flaser_stamps_fall_back_to_the_odom_lines(tmp_path):
+    choice = stamp_choice(tmp_path, stamps=np.zeros(40), odom_stamps=good_stamps())
+    assert choice.source == "ODOM lines"
+    assert choice.stamps == pytest.approx(good_stamps())
+    assert choice.warnings[1] == "FLASER logger_timestamp: not usable either (40 zero; the same values as the " \
+                                 "FLASER ipc_timestamp)"
+    assert choice.warnings[2] == ("FLASER ipc_timestamp not usable: using the times of the ODOM lines (the last "
+                                  "ODOM line before each scan) instead")
+
+
+def test_garbage_odom_times_are_refused_too(tmp_path):
+    rng = np.random.default_rng(1)
+    garbage = rng.choice([0.0, 4.4e-38, -8290.46, 6.979], size=40)  # what the Orebro log's ODOM lines hold
+    choice = stamp_choice(tmp_path, stamps=np.zeros(40), odom_stamps=garbage)
+    assert choice.source == "--period"
+    assert choice.warnings[2].startswith("ODOM lines: not usable either (")
+
+
+def test_conversion_prints_each_stamp_warning_on_stderr(tmp_path, capsys):
+    stamps = good_stamps()
+    stamps[3] = 0.0
+    stamps[10] = stamps[9] - 0.3
+    log_path = write_log(tmp_path / "warned.log", corridor_poses(40), stamps=stamps)
+    assert carmen_to_bag.main([str(log_path), str(tmp_path / "warned")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "carmen_to_bag: warning: timestamps: 1 of 40 scans have no FLASER ipc_timestamp (0); filled in linearly "
+        "between the scans around them",
+        "carmen_to_bag: warning: timestamps: 1 of 38 steps of FLASER ipc_timestamp do not increase (largest step "
+        "back 0.3 s); each moved 1 ms after the one before",
+    ]

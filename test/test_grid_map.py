@@ -164,6 +164,19 @@ def test_save_then_load_round_trip(tmp_path: Path) -> None:
     assert loaded.fingerprint() == grid.fingerprint()
 
 
+def test_save_as_png_round_trip_and_bad_format(tmp_path: Path) -> None:
+    data = np.full((5, 7), -1, dtype=np.int8)
+    data[1:4, 1:6] = 0
+    data[2, 3] = 100
+    grid = GridMap(data, 0.1, (3.0, -4.0))
+    yaml_path = grid.save(tmp_path / "saved.yaml", image_format="png")
+    assert (tmp_path / "saved.png").is_file() and not (tmp_path / "saved.pgm").exists()
+    assert yaml.safe_load(yaml_path.read_text())["image"] == "saved.png"
+    assert load_map_yaml(yaml_path).fingerprint() == grid.fingerprint()
+    with pytest.raises(MapError, match="image format must be one of .*'jpg'"):
+        grid.save(tmp_path / "lossy.yaml", image_format="jpg")
+
+
 def test_occupancy_grid_message_round_trip() -> None:
     from robot_localization_suite.ros.conversions import grid_map_from_msg, grid_map_to_msg
 

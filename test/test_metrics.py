@@ -225,3 +225,90 @@ def test_recovery_counted_in_updates_and_among_candidates():
     assert fields["kidnap_candidate_recovery_updates"] == [21]
     fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
     assert fields["kidnap_candidate_recovery_updates"] is None
+
+
+# -- map coverage ------------------------------------------------------------------------------
+def single_obstacle_map():
+    """2 m x 2 m of free 5 cm cells, origin (0, 0), one occupied cell at (ix, iy) = (20, 20)."""
+    from robot_localization_suite.core.grid_map import GridMap
+
+    data = np.zeros((40, 40), dtype=np.int8)
+    data[20, 20] = 100
+    return GridMap(data, 0.05, (0.0, 0.0))
+
+
+def centre(ix, iy) -> np.ndarray:
+    """World coordinates of the centres of cells ``(ix, iy)`` (scalars or arrays) of that map."""
+    return (np.stack([np.asarray(ix, float), np.asarray(iy, float)], axis=-1) + 0.5) * 0.05
+
+
+def beams_to(laser_xy: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Angles and ranges of beams from a laser at ``laser_xy`` with heading 0 ending at ``points``."""
+    delta = points - laser_xy
+    return np.arctan2(delta[:, 1], delta[:, 0]), np.hypot(delta[:, 0], delta[:, 1])
+
+
+def test_map_coverage_counts_end_points_within_two_cells_of_the_occupied_cell():
+    grid_map = single_obstacle_map()
+    laser = centre(5, 20)
+    # End points at cell centres, offset from the occupied cell (20, 20) by (dx, dy) cells:
+    offsets = np.array([
+        [0, 0],   # the cell itself: 0 m -> near
+        [1, 1],   # diagonal neighbour: 0.071 m -> near
+        [2, 0],   # two along x: 0.100 m -> near (the tolerance, inclusive)
+        [0, -2],  # two along y: 0.100 m -> near
+        [2, 1],   # 0.112 m -> not near
+        [3, 0],   # 0.150 m -> not near
+        [-10, 5], # free space far from it -> not near
+    ])
+    angles, ranges = beams_to(laser, centre(20 + offsets[:, 0], 20 + offsets[:, 1]))
+    # Readings that are not hits are left out: no-return, NaN, at range_max; one hit lands off the map.
+    off_map = np.hypot(*(np.array([2.5, 1.025]) - laser))
+    angles = np.concatenate([angles, [0.0, 0.0, 0.0, 0.0]])
+    ranges = np.concatenate([ranges, [np.inf, np.nan, 3.0, off_map]])
+    coverage = metrics.map_coverage(grid_map, np.array([[*laser, 0.0]]), angles, ranges[None], range_max=3.0)
+    assert coverage == pytest.approx([4 / 8])  # 4 near among 7 on-map hits + 1 off-map hit
+
+    # The same end points seen from a laser turned by 90 degrees: the beam angles turn back.
+    turned = metrics.map_coverage(grid_map, np.array([[*laser, np.pi / 2]]), angles - np.pi / 2, ranges[None],
+                                  range_max=3.0)
+    assert turned == pytest.approx(coverage)
+    # A tolerance of zero keeps only the occupied cell itself.
+    exact = metrics.map_coverage(grid_map, np.array([[*laser, 0.0]]), angles, ranges[None], range_max=3.0,
+                                 tolerance=0.0)
+    assert exact == pytest.approx([1 / 8])
+
+
+def test_map_coverage_of_several_scans_in_one_call_and_a_scan_without_hits():
+    grid_map = single_obstacle_map()
+    laser = centre(5, 20)
+    angles, ranges = beams_to(laser, np.array([centre(20, 20), centre(30, 30)]))  # one near, one not
+    poses = np.array([[*laser, 0.0], [*laser, 0.0], [*laser, 0.0]])
+    batch = np.vstack([ranges, [ranges[0], ranges[0]], [np.inf, np.inf]])
+    per_scan_angles = np.vstack([angles, [angles[0], angles[0]], angles])  # (S, B): both beams of scan 2 near
+    coverage = metrics.map_coverage(grid_map, poses, per_scan_angles, batch, range_max=np.array([3.0, 3.0, 3.0]))
+    assert coverage[:2] == pytest.approx([0.5, 1.0])
+    assert np.isnan(coverage[2])  # no hit at all: no coverage, not zero
+    with pytest.raises(ValueError, match="2 poses but 3 scans"):
+        metrics.map_coverage(grid_map, poses[:2], angles, batch, range_max=3.0)
+
+
+def test_coverage_at_stamps_finds_each_output_scan_and_nothing_else():
+    scan_stamps = np.array([1.0, 2.0, 3.0])
+    coverage = np.array([0.9, 0.5, np.nan])
+    found = metrics.coverage_at_stamps([2.0, 1.0 + 1e-4, 2.5, 3.0, 7.0], scan_stamps, coverage)
+    assert found[:2] == pytest.approx([0.5, 0.9])
+    assert np.isnan(found[2:]).all()  # between scans, a scan without coverage, after every scan
+
+
+def test_coverage_rates_split_correct_outputs_by_coverage():
+    correct = np.array([True, True, False, False, True, False])
+    coverage = np.array([0.95, 0.8, 0.9, 0.3, 0.2, np.nan])
+    rates = metrics.coverage_rates(correct, coverage)
+    assert rates["outputs"] == 6 and rates["outputs_covered"] == 3  # 0.95, 0.8 (inclusive), 0.9
+    assert rates["correct_rate"] == pytest.approx(0.5)
+    assert rates["correct_rate_covered"] == pytest.approx(2 / 3, abs=1e-4)
+    assert rates["correct_rate_uncovered"] == pytest.approx(0.5)  # 0.3 wrong, 0.2 right; NaN in neither
+    assert rates["coverage_median"] == pytest.approx(0.8)
+    empty = metrics.coverage_rates(np.zeros(0, bool), np.zeros(0))
+    assert empty["correct_rate_covered"] is None and empty["coverage_median"] is None

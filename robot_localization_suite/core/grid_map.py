@@ -32,9 +32,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import MapError
 
-__all__ = ["GridMap", "load_map_yaml", "MAP_MODES"]
+__all__ = ["GridMap", "load_map_yaml", "MAP_MODES", "MAP_IMAGE_FORMATS"]
 
 MAP_MODES = ("trinary", "scale", "raw")
+MAP_IMAGE_FORMATS = ("pgm", "png")
 
 # What nav2 map_saver writes for each cell class in a trinary PGM.
 _PGM_OCCUPIED, _PGM_FREE, _PGM_UNKNOWN = 0, 254, 205
@@ -210,10 +211,15 @@ class GridMap:
             "data": self.data.reshape(-1),
         }
 
-    def save(self, yaml_path: str | os.PathLike[str]) -> Path:
-        """Write a nav2 map_server trinary map: ``<name>.yaml`` beside ``<name>.pgm``."""
+    def save(self, yaml_path: str | os.PathLike[str], *, image_format: str = "pgm") -> Path:
+        """Write a nav2 map_server trinary map: ``<name>.yaml`` beside ``<name>.pgm`` (or ``.png``).
+
+        PNG is lossless and a few times smaller for mostly-unknown maps; map_server reads both.
+        """
+        if image_format not in MAP_IMAGE_FORMATS:
+            raise MapError(f"map image format must be one of {MAP_IMAGE_FORMATS}, got {image_format!r}")
         yaml_path = Path(yaml_path)
-        image_path = yaml_path.with_suffix(".pgm")
+        image_path = yaml_path.with_suffix(f".{image_format}")
         image = np.full(self.data.shape, _PGM_UNKNOWN, dtype=np.uint8)
         image[self.free_mask] = _PGM_FREE
         image[self.occupied_mask] = _PGM_OCCUPIED

@@ -18,12 +18,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .se2 import angle_difference, relative, wrap_angle
+
+if TYPE_CHECKING:
+    from .grid_map import GridMap
 
 __all__ = [
     "outside_kidnap_until_restart",
@@ -50,6 +53,11 @@ __all__ = [
     "nearest_node_is_place",
     "recall_at_k",
     "evaluate_global_fixes",
+    "COVERAGE_TOLERANCE_CELLS",
+    "COVERED_FRACTION",
+    "map_coverage",
+    "coverage_at_stamps",
+    "coverage_rates",
 ]
 
 CORRECT_XY_M = 0.5
@@ -61,6 +69,8 @@ KIDNAP_JUMP_M = 1.0
 KIDNAP_EXCLUSION_S = 5.0
 RECALL_KS = (1, 5, 10, 30, 50, 100)
 CANDIDATE_K = 10
+COVERAGE_TOLERANCE_CELLS = 2  # an end point is explained within 2 cells (0.1 m on 5 cm maps) of an occupied cell
+COVERED_FRACTION = 0.8  # an output is "covered" when at least this share of its scan's end points is explained
 
 
 @dataclass(frozen=True)
@@ -389,3 +399,114 @@ def outside_kidnap_until_restart(
         end = stamps[restarts[0]] if restarts.size else np.inf
         keep &= ~(after & (stamps <= end))
     return keep
+
+
+def map_coverage(
+    grid_map: GridMap,
+    laser_poses: ArrayLike,
+    angles: ArrayLike,
+    ranges: ArrayLike,
+    *,
+    range_max: ArrayLike,
+    range_min: ArrayLike = 0.0,
+    tolerance: float | None = None,
+) -> NDArray[np.float64]:
+    """Per scan, the fraction of its hit end points that lie near an occupied cell of ``grid_map``.
+
+    Args:
+        grid_map: the map the scans are judged against.
+        laser_poses: ``(S, 3)`` true laser poses in the map frame [m, m, rad].
+        angles: ``(B,)`` or ``(S, B)`` beam angles in the laser frame [rad].
+        ranges: ``(S, B)`` raw readings [m] (NaN-pad scans with fewer beams). A hit is finite and
+            in ``[range_min, range_max)`` (REP 117, as ``core.scan.Scan``); other readings are left out.
+        range_max, range_min: scalars or ``(S,)`` [m].
+        tolerance: [m], default ``COVERAGE_TOLERANCE_CELLS * grid_map.resolution`` (0.1 m at 5 cm).
+            Measured from the centre of the end point's cell to the nearest occupied cell centre
+            (``GridMap.distance_field``): at 2 cells, the cell itself, its 8 neighbours and the
+            4 cells two steps away along an axis.
+
+    Returns:
+        ``(S,)`` fractions in ``[0, 1]``; NaN for a scan without hits. End points off the map count
+        as not explained.
+    """
+    poses = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
+    ranges = np.atleast_2d(np.asarray(ranges, dtype=np.float64))
+    if ranges.shape[0] != poses.shape[0]:
+        raise ValueError(f"map_coverage: {poses.shape[0]} poses but {ranges.shape[0]} scans of ranges")
+    angles = np.broadcast_to(np.asarray(angles, dtype=np.float64), ranges.shape)
+    tolerance = COVERAGE_TOLERANCE_CELLS * grid_map.resolution if tolerance is None else float(tolerance)
+    if not np.isfinite(tolerance) or tolerance < 0.0:
+        raise ValueError(f"map_coverage: tolerance must be >= 0 m, got {tolerance!r}")
+    upper = np.asarray(range_max, dtype=np.float64).reshape(-1, 1) if np.ndim(range_max) else float(range_max)
+    lower = np.asarray(range_min, dtype=np.float64).reshape(-1, 1) if np.ndim(range_min) else float(range_min)
+    with np.errstate(invalid="ignore"):
+        hit = np.isfinite(ranges) & (ranges >= lower) & (ranges < upper)
+    length = np.where(hit, ranges, 0.0)
+    heading = poses[:, 2:3] + angles
+    ends = np.stack([poses[:, 0:1] + length * np.cos(heading), poses[:, 1:2] + length * np.sin(heading)], axis=-1)
+    cells = grid_map.world_to_cell(ends)
+    inside = hit & grid_map.in_bounds(cells)
+    near = np.zeros(ranges.shape, dtype=bool)
+    # float32 field: a cell exactly `tolerance` away must count (2 * 0.05 m is 0.1000000015 in float32).
+    near[inside] = grid_map.distance_field()[cells[..., 1][inside], cells[..., 0][inside]] <= tolerance + 1e-6
+    hits = hit.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(hits > 0, near.sum(axis=1) / hits, np.nan)
+
+
+def coverage_at_stamps(
+    query_stamps: ArrayLike, scan_stamps: ArrayLike, coverage: ArrayLike, *, max_gap_s: float = 5e-4
+) -> NDArray[np.float64]:
+    """Coverage ``(Q,)`` of the scan nearest each query stamp [s], NaN where none is within ``max_gap_s``.
+
+    Outputs carry their input scan's stamp, so a localizer's outputs find their scans exactly.
+    """
+    query = np.atleast_1d(np.asarray(query_stamps, dtype=np.float64))
+    stamps = np.asarray(scan_stamps, dtype=np.float64).reshape(-1)
+    values = np.asarray(coverage, dtype=np.float64).reshape(-1)
+    if stamps.shape != values.shape:
+        raise ValueError(f"coverage_at_stamps: {stamps.size} scan stamps but {values.size} coverages")
+    out = np.full(query.shape, np.nan)
+    if stamps.size == 0:
+        return out
+    order = np.argsort(stamps, kind="stable")
+    stamps, values = stamps[order], values[order]
+    right = np.clip(np.searchsorted(stamps, query), 1, max(stamps.size - 1, 1))
+    left = right - 1
+    nearest = np.where(np.abs(stamps[right] - query) < np.abs(query - stamps[left]), right, left)
+    close = np.abs(stamps[nearest] - query) <= max_gap_s
+    out[close] = values[nearest[close]]
+    return out
+
+
+def coverage_rates(
+    correct: ArrayLike, coverage: ArrayLike, *, threshold: float = COVERED_FRACTION
+) -> dict[str, Any]:
+    """Correct rates split by map coverage, for the outputs given (pass ``correct[after_fix]`` and its
+    coverage for the from-first-fix convention of ``correct_rate``).
+
+    Returns ``coverage_median`` (over outputs with a coverage), ``outputs``, ``outputs_covered``
+    (coverage >= ``threshold``), ``correct_rate``, ``correct_rate_covered`` and
+    ``correct_rate_uncovered`` (coverage known and below ``threshold``); None where there is nothing.
+    """
+    correct = np.asarray(correct, dtype=bool).reshape(-1)
+    coverage = np.asarray(coverage, dtype=np.float64).reshape(-1)
+    if correct.shape != coverage.shape:
+        raise ValueError(f"coverage_rates: {correct.size} outputs but {coverage.size} coverages")
+    known = np.isfinite(coverage)
+    with np.errstate(invalid="ignore"):
+        covered = known & (coverage >= threshold)
+    uncovered = known & ~covered
+
+    def rate(mask: NDArray[np.bool_]) -> float | None:
+        return _rounded(np.mean(correct[mask])) if mask.any() else None
+
+    return {
+        "coverage_threshold": float(threshold),
+        "coverage_median": _rounded(np.median(coverage[known])) if known.any() else None,
+        "outputs": int(correct.size),
+        "outputs_covered": int(covered.sum()),
+        "correct_rate": rate(np.ones_like(correct)),
+        "correct_rate_covered": rate(covered),
+        "correct_rate_uncovered": rate(uncovered),
+    }

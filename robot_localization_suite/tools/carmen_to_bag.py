@@ -1,6 +1,7 @@
 """Turn a corrected CARMEN log into a rosbag2 MCAP bag and an occupancy map.
 
     carmen_to_bag LOG OUT_DIR [--map-out MAP_YAML] [--alpha1 A] ... [--seed S] [--resolution 0.05]
+    carmen_to_bag LOG OUT_DIR --blocks K [--name NAME]     (cross-validation split, tools/carmen_cv.py)
 
 Input: a (gzipped) corrected CARMEN log (Radish datasets). Only ``FLASER``
 lines are used; their format (CARMEN ``logtools``, old-style front laser) is
@@ -23,10 +24,14 @@ Choices, written down because the logs leave them open:
   or above ``max - no_return_tolerance`` (default 0.1 m) is a no-return,
   published as ``+inf``, and ``range_max`` is that threshold (REP 117).
   ``--max-range`` overrides the detection.
-* Time: the FLASER ``ipc_timestamp``. A stamp that does not increase is moved
-  1 ms after the previous one (the Intel log steps back five times by up to
-  0.9 s). A log without usable stamps (the Orebro log writes 0 everywhere)
-  gets one scan every ``--period`` seconds.
+* Time: the FLASER ``ipc_timestamp``; if it is not usable, the FLASER
+  ``logger_timestamp``, then the time of the last ODOM line before each scan,
+  then one scan every ``--period`` seconds. Every problem (zero, negative,
+  whole-second or non-increasing stamps) and every fallback is warned on
+  stderr, one line per kind. A stamp that does not increase is moved 1 ms
+  after the previous one (the Intel log steps back four times, by up to
+  0.86 s); the Orebro log has no usable time at all (tools/carmen_log.py,
+  docs/benchmark.md).
 * Odometry: the logs carry none that is usable, so ``/odom`` is the corrected
   trajectory seen through Thrun's odometry model (*Probabilistic Robotics*
   table 5.6, the shared ``OdometryMotionModel.sample``): each step between two
@@ -57,13 +62,12 @@ is the corrected laser pose.
 from __future__ import annotations
 
 import argparse
-import gzip
 import math
 import os
 import shutil
 import sys
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
@@ -73,6 +77,17 @@ from numpy.typing import NDArray
 from ..core.errors import LocalizationSuiteError
 from ..core.grid_map import GridMap
 from ..core.motion import OdometryMotionModel, odometry_delta
+from .carmen_log import (
+    CarmenLog,
+    CarmenLogError,
+    CarmenScan,
+    _report_to_stderr,
+    assign_stamps,
+    beam_geometry,
+    choose_stamps,
+    detect_max_range,
+    parse_carmen_log,
+)
 
 __all__ = [
     "CarmenLogError",
@@ -80,12 +95,17 @@ __all__ = [
     "CarmenLog",
     "ConversionSettings",
     "ConversionReport",
+    "PreparedLog",
     "parse_carmen_log",
     "beam_geometry",
     "detect_max_range",
     "assign_stamps",
+    "choose_stamps",
     "simulate_odometry",
     "build_occupancy_map",
+    "prepare_log",
+    "build_log_map",
+    "write_bag",
     "convert_log",
     "main",
 ]
@@ -97,155 +117,6 @@ LOG_ODDS_MISS = math.log(0.4 / 0.6)
 LOG_ODDS_MIN, LOG_ODDS_MAX = -2.0, 3.5
 
 DEFAULT_ALPHAS = (1.2e-3, 1e-4, 4e-4, 1e-4)  # alpha1..alpha4, see the module docstring
-
-# Fields after the ranges: x y theta odom_x odom_y odom_theta ipc_timestamp (host and logger_timestamp optional).
-_REQUIRED_TAIL = 7
-
-
-class CarmenLogError(LocalizationSuiteError):
-    """A CARMEN log cannot be converted (missing, unreadable, or without FLASER lines)."""
-
-
-@dataclass(frozen=True)
-class CarmenScan:
-    """One FLASER line: raw ranges [m], corrected laser pose, the log's timestamp [s]."""
-
-    line_number: int
-    ranges: NDArray[np.float64]
-    pose: NDArray[np.float64]
-    timestamp: float
-
-
-@dataclass
-class CarmenLog:
-    """The FLASER scans of a log and the lines that were skipped (line number, reason)."""
-
-    scans: list[CarmenScan]
-    skipped: list[tuple[int, str]] = field(default_factory=list)
-
-
-def _open_text(path: Path):
-    with open(path, "rb") as probe:
-        magic = probe.read(2)
-    if magic == b"\x1f\x8b":
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, encoding="ascii", errors="replace")
-
-
-def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-    """Ranges, pose and timestamp of the tokens of one FLASER line; ``ValueError`` saying what is wrong."""
-    if len(tokens) < 2:
-        raise ValueError("no beam count")
-    try:
-        count = int(tokens[1])
-    except ValueError:
-        raise ValueError(f"beam count {tokens[1]!r} is not an integer") from None
-    if not 1 <= count <= 100_000:
-        raise ValueError(f"beam count {count} out of range")
-    needed = 2 + count + _REQUIRED_TAIL
-    if len(tokens) < needed:
-        raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
-    try:
-        values = np.array(tokens[2:needed], dtype=np.float64)
-    except ValueError:
-        bad = next(t for t in tokens[2:needed] if not _is_number(t))
-        raise ValueError(f"field {bad!r} is not a number") from None
-    ranges = values[:count]
-    pose = values[count : count + 3]
-    if not np.all(np.isfinite(pose)):
-        raise ValueError(f"pose {pose.tolist()!r} is not finite")
-    timestamp = float(values[count + 6])
-    return ranges, pose, timestamp
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _report_to_stderr(line_number: int, reason: str) -> None:
-    print(f"carmen_to_bag: line {line_number}: {reason}; skipped", file=sys.stderr)
-
-
-def parse_carmen_log(
-    path: str | os.PathLike[str],
-    *,
-    on_skip: Callable[[int, str], None] | None = _report_to_stderr,
-) -> CarmenLog:
-    """Read the FLASER lines of a CARMEN log (plain or gzip).
-
-    A malformed or truncated FLASER line is reported through ``on_skip(line_number, reason)``
-    (1-based line numbers) and skipped.
-
-    Raises:
-        CarmenLogError: the file is missing or unreadable, or holds no usable FLASER line.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise CarmenLogError(f"CARMEN log {str(path)!r} does not exist")
-    log = CarmenLog(scans=[])
-    try:
-        with _open_text(path) as stream:
-            for line_number, line in enumerate(stream, start=1):
-                if not line.startswith("FLASER"):
-                    continue
-                tokens = line.split()
-                if tokens[0] != "FLASER":
-                    continue
-                try:
-                    ranges, pose, timestamp = _parse_flaser(tokens)
-                except ValueError as exc:
-                    log.skipped.append((line_number, str(exc)))
-                    if on_skip is not None:
-                        on_skip(line_number, f"malformed FLASER line ({exc})")
-                    continue
-                log.scans.append(CarmenScan(line_number, ranges, pose, timestamp))
-    except (OSError, EOFError, gzip.BadGzipFile) as exc:
-        raise CarmenLogError(f"CARMEN log {str(path)!r} cannot be read: {exc}") from exc
-    if not log.scans:
-        detail = f" ({len(log.skipped)} malformed)" if log.skipped else ""
-        raise CarmenLogError(f"CARMEN log {str(path)!r} holds no usable FLASER line{detail}")
-    return log
-
-
-def beam_geometry(count: int) -> tuple[float, float]:
-    """``(angle_min, angle_increment)`` [rad] of a CARMEN front laser with ``count`` beams."""
-    if count in (180, 181):
-        increment = math.pi / 180.0
-    elif count in (360, 361):
-        increment = math.pi / 360.0
-    elif count > 1:
-        increment = math.pi / (count - 1)
-    else:
-        increment = math.pi
-    return -math.pi / 2.0, increment
-
-
-def detect_max_range(scans: Iterable[CarmenScan], tolerance: float) -> float:
-    """The no-return threshold [m]: the log's largest reading minus ``tolerance``."""
-    largest = max(float(np.nanmax(s.ranges)) if s.ranges.size else -np.inf for s in scans)
-    if not np.isfinite(largest) or largest - tolerance <= 0.0:
-        raise CarmenLogError(f"cannot find the maximum range of the log (largest reading {largest!r})")
-    return largest - tolerance
-
-
-def assign_stamps(raw: NDArray[np.float64], period: float, min_step: float = 1e-3) -> NDArray[np.float64]:
-    """Increasing stamps [s] from the log's timestamps (see the module docstring)."""
-    raw = np.asarray(raw, dtype=np.float64)
-    if raw.size == 0:
-        return raw
-    usable = np.all(np.isfinite(raw)) and (raw.size == 1 or np.count_nonzero(np.diff(raw) > 0) >= (raw.size - 1) / 2)
-    if not usable or raw.max() <= 0.0:
-        return period * np.arange(1, raw.size + 1, dtype=np.float64)
-    stamps = raw.copy()
-    for i in range(1, stamps.size):
-        if stamps[i] <= stamps[i - 1]:
-            stamps[i] = stamps[i - 1] + min_step
-    return stamps
-
 
 def simulate_odometry(
     poses: NDArray[np.float64], model: OdometryMotionModel, rng: np.random.Generator
@@ -389,6 +260,143 @@ class ConversionSettings:
             raise ValueError(f"no_return_tolerance must be >= 0, got {self.no_return_tolerance!r}")
 
 
+@dataclass(frozen=True)
+class PreparedLog:
+    """A parsed log with what every bag cut from it shares: stamps, truth, odometry, beams.
+
+    Attributes:
+        stamps: ``(S,)`` scan stamps [s]; ``stamp_source`` says where they come from.
+        poses: ``(S, 3)`` corrected laser poses (the ground truth).
+        odom: ``(S, 3)`` simulated odometry, one seeded stream over the whole log.
+        max_range: no-return threshold [m].
+        scan_time: median time between scans [s] (``LaserScan.scan_time``).
+    """
+
+    log: CarmenLog
+    stamps: NDArray[np.float64]
+    stamp_source: str
+    stamp_warnings: tuple[str, ...]
+    poses: NDArray[np.float64]
+    odom: NDArray[np.float64]
+    max_range: float
+    scan_time: float
+
+    @property
+    def scans(self) -> list[CarmenScan]:
+        return self.log.scans
+
+    def angles(self, index: int) -> NDArray[np.float64]:
+        """Beam angles [rad] of scan ``index``."""
+        angle_min, increment = beam_geometry(self.scans[index].ranges.size)
+        return angle_min + increment * np.arange(self.scans[index].ranges.size)
+
+
+def _report_warning_to_stderr(message: str) -> None:
+    print(f"carmen_to_bag: warning: timestamps: {message}", file=sys.stderr)
+
+
+def prepare_log(
+    log_path: str | os.PathLike[str],
+    settings: ConversionSettings | None = None,
+    *,
+    on_skip: Callable[[int, str], None] | None = _report_to_stderr,
+    on_warning: Callable[[str], None] | None = _report_warning_to_stderr,
+) -> PreparedLog:
+    """Parse a log, choose its stamps (warning through ``on_warning``) and simulate its odometry."""
+    settings = settings or ConversionSettings()
+    log = parse_carmen_log(log_path, on_skip=on_skip)
+    scans = log.scans
+    max_range = settings.max_range or detect_max_range(scans, settings.no_return_tolerance)
+    poses = np.array([s.pose for s in scans])
+    choice = choose_stamps(scans, settings.period)
+    if on_warning is not None:
+        for message in choice.warnings:
+            on_warning(message)
+    rng = np.random.default_rng(settings.seed)
+    alpha1, alpha2, alpha3, alpha4 = settings.alphas
+    odom = simulate_odometry(poses, OdometryMotionModel(alpha1, alpha2, alpha3, alpha4), rng)
+    stamps = choice.stamps
+    scan_time = float(np.median(np.diff(stamps))) if len(stamps) > 1 else settings.period
+    return PreparedLog(log, stamps, choice.source, choice.warnings, poses, odom, float(max_range), scan_time)
+
+
+def build_log_map(prepared: PreparedLog, settings: ConversionSettings, indices: Sequence[int] | None = None) -> GridMap:
+    """The occupancy map of the scans ``indices`` of a prepared log (default: all of them)."""
+    chosen = range(len(prepared.scans)) if indices is None else indices
+    return build_occupancy_map(
+        prepared.poses[list(chosen)],
+        [prepared.angles(i) for i in chosen],
+        [prepared.scans[i].ranges for i in chosen],
+        prepared.max_range,
+        resolution=settings.resolution,
+        map_max_range=settings.map_max_range,
+    )
+
+
+def write_bag(
+    out_dir: str | os.PathLike[str],
+    prepared: PreparedLog,
+    grid_map: GridMap | None,
+    *,
+    scans: range | None = None,
+    compress: bool = False,
+) -> Path:
+    """Write the scans ``scans`` (default: all) of a prepared log as a bag, ``/map`` first if given.
+
+    Every message depends only on its scan's index in the whole log, so the bags of a
+    partition of the scans hold exactly the whole log's messages.
+    """
+    # Imported here so that parsing and map building stay usable without ROS.
+    from ..ros import conversions
+    from ..ros.bag import BagWriter
+
+    chosen = range(len(prepared.scans)) if scans is None else scans
+    stamps, odom, poses, max_range = prepared.stamps, prepared.odom, prepared.poses, prepared.max_range
+    microsecond = 1000
+    out_dir = Path(out_dir)
+    with BagWriter(out_dir, compress=compress) as writer:
+        if grid_map is not None:
+            first = float(stamps[chosen[0]])
+            writer.write("/map", conversions.grid_map_to_msg(grid_map, first),
+                         int(round(first * 1e9)) - 4 * microsecond)
+        for i in chosen:
+            scan = prepared.scans[i]
+            stamp = float(stamps[i])
+            stamp_ns = int(round(stamp * 1e9))
+            dt = stamp - float(stamps[i - 1]) if i > 0 else 0.0
+            if i > 0 and dt > 0.0:
+                step = odometry_delta(odom[i - 1], odom[i])
+                velocity = (step.trans / dt, (step.rot1 + step.rot2) / dt)
+            else:
+                velocity = (0.0, 0.0)
+            writer.write(
+                "/odom",
+                conversions.odometry_to_msg(stamp, odom[i], frame_id="odom", velocity=velocity),
+                stamp_ns - 2 * microsecond,
+            )
+            writer.write(
+                "/ground_truth", conversions.odometry_to_msg(stamp, poses[i], frame_id="map"), stamp_ns - microsecond
+            )
+            ranges = np.where(np.isfinite(scan.ranges) & (scan.ranges >= max_range), np.inf, scan.ranges)
+            ranges = np.where(np.isfinite(ranges) & (ranges < 0.0), np.nan, ranges)
+            angle_min, increment = beam_geometry(scan.ranges.size)
+            writer.write(
+                "/scan",
+                conversions.scan_to_msg(
+                    stamp,
+                    "laser",
+                    angle_min=angle_min,
+                    angle_increment=increment,
+                    ranges=ranges,
+                    range_min=0.0,
+                    range_max=max_range,
+                    scan_time=prepared.scan_time,
+                ),
+                stamp_ns,
+            )
+    return out_dir
+
+
 @dataclass
 class ConversionReport:
     """What a conversion produced."""
@@ -402,12 +410,16 @@ class ConversionReport:
     map_cells: tuple[int, int]
     bag_bytes: int
     map_yaml: Path | None
+    stamp_source: str = "FLASER ipc_timestamp"
+    stamp_warnings: tuple[str, ...] = ()
 
     def summary(self) -> str:
         lines = [
             f"{self.scans} scans ({', '.join(str(c) for c in self.beam_counts)} beams), "
             f"{len(self.skipped_lines)} malformed lines skipped",
             f"no-return threshold {self.max_range:.3f} m, {self.duration_s:.1f} s, path {self.path_length_m:.1f} m",
+            f"stamps: {self.stamp_source}"
+            + (f" ({len(self.stamp_warnings)} timestamp warnings on stderr)" if self.stamp_warnings else ""),
             f"map {self.map_cells[0]} x {self.map_cells[1]} cells, bag {self.bag_bytes / 1e6:.2f} MB",
         ]
         if self.map_yaml is not None:
@@ -419,6 +431,14 @@ def _directory_bytes(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
 
+def _clear(path: Path, overwrite: bool) -> None:
+    """Refuse an existing output unless ``overwrite``; then remove it."""
+    if path.exists():
+        if not overwrite:
+            raise CarmenLogError(f"output {str(path)!r} exists (use --overwrite)")
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+
+
 def convert_log(
     log_path: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -427,101 +447,59 @@ def convert_log(
     settings: ConversionSettings | None = None,
     overwrite: bool = False,
     on_skip: Callable[[int, str], None] | None = _report_to_stderr,
+    on_warning: Callable[[str], None] | None = _report_warning_to_stderr,
 ) -> ConversionReport:
     """Convert one CARMEN log into a bag at ``out_dir`` (and a map YAML at ``map_out``)."""
-    # Imported here so that parsing and map building stay usable without ROS.
-    from ..ros import conversions
-    from ..ros.bag import BagWriter
-
     settings = settings or ConversionSettings()
-    log = parse_carmen_log(log_path, on_skip=on_skip)
-    scans = log.scans
-    max_range = settings.max_range or detect_max_range(scans, settings.no_return_tolerance)
-    poses = np.array([s.pose for s in scans])
-    stamps = assign_stamps(np.array([s.timestamp for s in scans]), settings.period)
-    rng = np.random.default_rng(settings.seed)
-    alpha1, alpha2, alpha3, alpha4 = settings.alphas
-    odom = simulate_odometry(poses, OdometryMotionModel(alpha1, alpha2, alpha3, alpha4), rng)
-
-    geometry = [beam_geometry(s.ranges.size) for s in scans]
-    angle_sets = [a0 + inc * np.arange(s.ranges.size) for (a0, inc), s in zip(geometry, scans, strict=True)]
-    range_sets = [s.ranges for s in scans]
-    grid_map = build_occupancy_map(
-        poses, angle_sets, range_sets, max_range, resolution=settings.resolution, map_max_range=settings.map_max_range
-    )
-
+    prepared = prepare_log(log_path, settings, on_skip=on_skip, on_warning=on_warning)
+    grid_map = build_log_map(prepared, settings)
     out_dir = Path(out_dir)
-    if out_dir.exists():
-        if not overwrite:
-            raise CarmenLogError(f"output bag {str(out_dir)!r} exists (use --overwrite)")
-        shutil.rmtree(out_dir)
-    microsecond = 1000
-    period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else settings.period
-    with BagWriter(out_dir) as writer:
-        first_ns = int(round(stamps[0] * 1e9))
-        writer.write("/map", conversions.grid_map_to_msg(grid_map, float(stamps[0])), first_ns - 4 * microsecond)
-        previous_stamp = stamps[0]
-        for i, scan in enumerate(scans):
-            stamp = float(stamps[i])
-            stamp_ns = int(round(stamp * 1e9))
-            dt = stamp - previous_stamp
-            if i > 0 and dt > 0.0:
-                step = odometry_delta(odom[i - 1], odom[i])
-                velocity = (step.trans / dt, (step.rot1 + step.rot2) / dt)
-            else:
-                velocity = (0.0, 0.0)
-            previous_stamp = stamp
-            writer.write(
-                "/odom",
-                conversions.odometry_to_msg(stamp, odom[i], frame_id="odom", velocity=velocity),
-                stamp_ns - 2 * microsecond,
-            )
-            writer.write(
-                "/ground_truth", conversions.odometry_to_msg(stamp, poses[i], frame_id="map"), stamp_ns - microsecond
-            )
-            ranges = np.where(np.isfinite(scan.ranges) & (scan.ranges >= max_range), np.inf, scan.ranges)
-            ranges = np.where(np.isfinite(ranges) & (ranges < 0.0), np.nan, ranges)
-            angle_min, increment = geometry[i]
-            writer.write(
-                "/scan",
-                conversions.scan_to_msg(
-                    stamp,
-                    "laser",
-                    angle_min=angle_min,
-                    angle_increment=increment,
-                    ranges=ranges,
-                    range_min=0.0,
-                    range_max=max_range,
-                    scan_time=period,
-                ),
-                stamp_ns,
-            )
+    _clear(out_dir, overwrite)
+    write_bag(out_dir, prepared, grid_map)
     map_yaml = grid_map.save(map_out) if map_out is not None else None
+    poses, stamps = prepared.poses, prepared.stamps
     steps = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
     return ConversionReport(
-        scans=len(scans),
-        skipped_lines=log.skipped,
-        beam_counts=sorted({s.ranges.size for s in scans}),
-        max_range=float(max_range),
+        scans=len(prepared.scans),
+        skipped_lines=prepared.log.skipped,
+        beam_counts=sorted({s.ranges.size for s in prepared.scans}),
+        max_range=prepared.max_range,
         duration_s=float(stamps[-1] - stamps[0]),
         path_length_m=float(steps.sum()),
         map_cells=(grid_map.width, grid_map.height),
         bag_bytes=_directory_bytes(out_dir),
         map_yaml=map_yaml,
+        stamp_source=prepared.stamp_source,
+        stamp_warnings=prepared.stamp_warnings,
     )
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .carmen_cv import MIN_BLOCK_SCANS, NEAR_PATH_M
+
     defaults = ConversionSettings()
     parser = argparse.ArgumentParser(
         prog="carmen_to_bag",
         description="Convert a corrected CARMEN log (FLASER lines) into a rosbag2 MCAP bag with /scan, /odom, "
-        "/ground_truth and /map, and save the occupancy map built from it.",
+        "/ground_truth and /map, and save the occupancy map built from it. With --blocks K, cut it instead "
+        "into K cross-validation blocks, each a bag with a map built from the other K-1 blocks only.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("log", type=Path, help="CARMEN log, plain or .gz")
-    parser.add_argument("out_dir", type=Path, help="bag directory to create")
+    parser.add_argument("out_dir", type=Path, help="bag directory to create (with --blocks: the output directory)")
     parser.add_argument("--map-out", type=Path, default=None, help="also save the map as this nav2 YAML (+ .pgm)")
+    parser.add_argument(
+        "--blocks", type=int, default=None, metavar="K",
+        help="cross-validation split: K contiguous blocks of equal scan counts (by scan index, the first "
+        "blocks one scan longer when K does not divide the count). Writes OUT_DIR/<name>_cv<k>of<K>/ (the "
+        "block's scans; its /map is the block's map), OUT_DIR/<name>_cv<k>of<K>.yaml + .png (map from the other "
+        f"K-1 blocks), OUT_DIR/<name>_full.yaml + .png (map from all scans) and the index OUT_DIR/<name>_cv.yaml. "
+        f"Odometry is the whole log's seeded stream restricted to each block. A block of fewer than "
+        f"{MIN_BLOCK_SCANS} scans is skipped; a map with no free cell within {NEAR_PATH_M:g} m of the block's "
+        "path is refused; exit status 1 only if no block was written. None: convert the whole log",
+    )
+    parser.add_argument("--name", default=None,
+                        help="with --blocks: file name prefix; None: the log's file name without -corrected.log.gz")
     for index, default in enumerate(defaults.alphas, start=1):
         meaning = ("rotation from rotation", "rotation from translation", "translation from translation",
                    "translation from rotation")[index - 1]
@@ -530,19 +508,23 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the odometry noise")
     parser.add_argument("--resolution", type=float, default=defaults.resolution, help="map cell size [m]")
     parser.add_argument("--period", type=float, default=defaults.period,
-                        help="scan period [s] when the log has no usable timestamps")
+                        help="scan period [s] when neither the FLASER nor the ODOM lines have usable timestamps "
+                        "(warned on stderr)")
     parser.add_argument("--max-range", type=float, default=None,
                         help="no-return threshold [m] (default: the log's largest reading minus the tolerance)")
     parser.add_argument("--no-return-tolerance", type=float, default=defaults.no_return_tolerance,
                         help="readings this close to the log's largest reading are no-returns [m]")
     parser.add_argument("--map-max-range", type=float, default=defaults.map_max_range,
                         help="hits farther than this are not used as map endpoints [m]")
-    parser.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.blocks is not None and args.map_out is not None:
+        parser.error("--map-out does not go with --blocks (the whole-log map is OUT_DIR/<name>_full.yaml)")
     try:
         settings = ConversionSettings(
             alphas=(args.alpha1, args.alpha2, args.alpha3, args.alpha4),
@@ -553,6 +535,13 @@ def main(argv: list[str] | None = None) -> int:
             no_return_tolerance=args.no_return_tolerance,
             map_max_range=args.map_max_range,
         )
+        if args.blocks is not None:
+            from .carmen_cv import split_log
+
+            split = split_log(args.log, args.out_dir, args.blocks, name=args.name, settings=settings,
+                              overwrite=args.overwrite)
+            print(split.summary())
+            return 0 if split.written() else 1
         report = convert_log(args.log, args.out_dir, map_out=args.map_out, settings=settings, overwrite=args.overwrite)
     except (ValueError, LocalizationSuiteError) as exc:
         print(f"carmen_to_bag: error: {exc}", file=sys.stderr)

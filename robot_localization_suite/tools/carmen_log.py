@@ -1,0 +1,414 @@
+"""Read a corrected CARMEN log: its FLASER scans, their timestamps and what is wrong with them.
+
+The line format, beam geometry and no-return rule are in ``carmen_to_bag``'s docstring;
+the timestamp checks, fallbacks and what each of the four Radish logs needs are in
+docs/benchmark.md ("Real logs: timestamps").
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+import os
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..core.errors import LocalizationSuiteError
+
+__all__ = [
+    "CarmenLogError",
+    "CarmenScan",
+    "CarmenLog",
+    "StampCheck",
+    "StampChoice",
+    "parse_carmen_log",
+    "beam_geometry",
+    "detect_max_range",
+    "check_stamps",
+    "assign_stamps",
+    "choose_stamps",
+    "MIN_STAMP_STEP_S",
+]
+
+# Fields after the ranges: x y theta odom_x odom_y odom_theta ipc_timestamp (host and logger_timestamp optional).
+_REQUIRED_TAIL = 7
+# ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp: the ipc_timestamp's index.
+_ODOM_STAMP_INDEX = 7
+
+MIN_STAMP_STEP_S = 1e-3  # a stamp that does not increase is moved this far after the previous one [s]
+MISSING_BELOW_S = 1e-6  # |stamp| below this is missing: 0, or the denormal garbage of the Orebro ODOM lines [s]
+WHOLE_SECONDS_FRACTION = 0.9  # a source is rounded when this share of its valid stamps are whole seconds
+VALID_FRACTION = 0.5  # a source is usable when at least this share of its stamps are valid ...
+STEP_BACK_FRACTION = 0.1  # ... and at most this share of the steps between them (or one step) do not increase
+
+SOURCE_IPC = "FLASER ipc_timestamp"
+SOURCE_LOGGER = "FLASER logger_timestamp"
+SOURCE_ODOM = "ODOM lines"
+SOURCE_PERIOD = "--period"
+
+
+class CarmenLogError(LocalizationSuiteError):
+    """A CARMEN log cannot be converted (missing, unreadable, or without FLASER lines)."""
+
+
+@dataclass(frozen=True)
+class CarmenScan:
+    """One FLASER line: raw ranges [m], corrected laser pose, and the times the log gives it [s].
+
+    Attributes:
+        timestamp: the line's ``ipc_timestamp``.
+        logger_timestamp: the line's ``logger_timestamp`` (NaN if the line has none).
+        odom_timestamp: ``ipc_timestamp`` of the last ODOM line before this one (NaN if none).
+    """
+
+    line_number: int
+    ranges: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    timestamp: float
+    logger_timestamp: float = math.nan
+    odom_timestamp: float = math.nan
+
+
+@dataclass
+class CarmenLog:
+    """The FLASER scans of a log and the lines that were skipped (line number, reason)."""
+
+    scans: list[CarmenScan]
+    skipped: list[tuple[int, str]] = field(default_factory=list)
+
+
+def _open_text(path: Path):
+    with open(path, "rb") as probe:
+        magic = probe.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
+    """Ranges, pose, ipc and logger timestamps of one FLASER line; ``ValueError`` saying what is wrong."""
+    if len(tokens) < 2:
+        raise ValueError("no beam count")
+    try:
+        count = int(tokens[1])
+    except ValueError:
+        raise ValueError(f"beam count {tokens[1]!r} is not an integer") from None
+    if not 1 <= count <= 100_000:
+        raise ValueError(f"beam count {count} out of range")
+    needed = 2 + count + _REQUIRED_TAIL
+    if len(tokens) < needed:
+        raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
+    try:
+        values = np.array(tokens[2:needed], dtype=np.float64)
+    except ValueError:
+        bad = next(t for t in tokens[2:needed] if not _is_number(t))
+        raise ValueError(f"field {bad!r} is not a number") from None
+    ranges = values[:count]
+    pose = values[count : count + 3]
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    timestamp = float(values[count + 6])
+    # host then logger_timestamp follow; old logs stop at the ipc_timestamp.
+    logger = _number_or_nan(tokens[needed + 1]) if len(tokens) > needed + 1 else math.nan
+    return ranges, pose, timestamp, logger
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _number_or_nan(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
+def _report_to_stderr(line_number: int, reason: str) -> None:
+    print(f"carmen_to_bag: line {line_number}: {reason}; skipped", file=sys.stderr)
+
+
+def parse_carmen_log(
+    path: str | os.PathLike[str],
+    *,
+    on_skip: Callable[[int, str], None] | None = _report_to_stderr,
+) -> CarmenLog:
+    """Read the FLASER lines of a CARMEN log (plain or gzip), with the time of the ODOM line before each.
+
+    A malformed or truncated FLASER line is reported through ``on_skip(line_number, reason)``
+    (1-based line numbers) and skipped. ODOM lines serve only as a fallback clock.
+
+    Raises:
+        CarmenLogError: the file is missing or unreadable, or holds no usable FLASER line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CarmenLogError(f"CARMEN log {str(path)!r} does not exist")
+    log = CarmenLog(scans=[])
+    last_odom = math.nan
+    try:
+        with _open_text(path) as stream:
+            for line_number, line in enumerate(stream, start=1):
+                if line.startswith("ODOM"):
+                    tokens = line.split()
+                    if tokens[0] == "ODOM":
+                        last_odom = _number_or_nan(tokens[_ODOM_STAMP_INDEX]) if len(tokens) > 7 else math.nan
+                    continue
+                if not line.startswith("FLASER"):
+                    continue
+                tokens = line.split()
+                if tokens[0] != "FLASER":
+                    continue
+                try:
+                    ranges, pose, timestamp, logger = _parse_flaser(tokens)
+                except ValueError as exc:
+                    log.skipped.append((line_number, str(exc)))
+                    if on_skip is not None:
+                        on_skip(line_number, f"malformed FLASER line ({exc})")
+                    continue
+                log.scans.append(CarmenScan(line_number, ranges, pose, timestamp, logger, last_odom))
+    except (OSError, EOFError, gzip.BadGzipFile) as exc:
+        raise CarmenLogError(f"CARMEN log {str(path)!r} cannot be read: {exc}") from exc
+    if not log.scans:
+        detail = f" ({len(log.skipped)} malformed)" if log.skipped else ""
+        raise CarmenLogError(f"CARMEN log {str(path)!r} holds no usable FLASER line{detail}")
+    return log
+
+
+def beam_geometry(count: int) -> tuple[float, float]:
+    """``(angle_min, angle_increment)`` [rad] of a CARMEN front laser with ``count`` beams."""
+    if count in (180, 181):
+        increment = math.pi / 180.0
+    elif count in (360, 361):
+        increment = math.pi / 360.0
+    elif count > 1:
+        increment = math.pi / (count - 1)
+    else:
+        increment = math.pi
+    return -math.pi / 2.0, increment
+
+
+def detect_max_range(scans: Iterable[CarmenScan], tolerance: float) -> float:
+    """The no-return threshold [m]: the log's largest reading minus ``tolerance``."""
+    largest = max(float(np.nanmax(s.ranges)) if s.ranges.size else -np.inf for s in scans)
+    if not np.isfinite(largest) or largest - tolerance <= 0.0:
+        raise CarmenLogError(f"cannot find the maximum range of the log (largest reading {largest!r})")
+    return largest - tolerance
+
+
+# -- timestamps -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StampCheck:
+    """What is wrong with one source of scan times (counts over its ``count`` values).
+
+    A stamp is *valid* when finite and at least ``MISSING_BELOW_S``; *missing* when its
+    magnitude is below that (0 in practice). Steps are counted between consecutive valid
+    stamps; in a rounded source equal steps are the rounding's, not counted as non-increasing.
+    """
+
+    source: str
+    count: int
+    missing: int
+    negative: int
+    non_finite: int
+    whole_seconds: int
+    non_increasing: int
+    steps: int
+    largest_step_back_s: float
+    span_s: float
+
+    @property
+    def valid(self) -> int:
+        return self.count - self.missing - self.negative - self.non_finite
+
+    @property
+    def rounded(self) -> bool:
+        """Nearly every valid stamp is a whole second: the log was written with no fraction."""
+        return self.valid >= 3 and self.whole_seconds >= WHOLE_SECONDS_FRACTION * self.valid
+
+    @property
+    def usable(self) -> bool:
+        """Enough valid stamps, rising nearly always and spanning some time."""
+        return (
+            self.valid >= max(2, VALID_FRACTION * self.count)
+            and self.non_increasing <= max(1, STEP_BACK_FRACTION * self.steps)
+            and self.span_s > 0.0
+        )
+
+    def problems(self) -> dict[str, int]:
+        """Problem kind -> count, only the kinds present."""
+        found = {
+            "missing": self.missing,
+            "negative": self.negative,
+            "non_finite": self.non_finite,
+            "rounded": self.whole_seconds if self.rounded else 0,
+            "non_increasing": self.non_increasing,
+        }
+        return {kind: n for kind, n in found.items() if n}
+
+    def describe(self) -> str:
+        """The problems in a few words, e.g. ``"18 zero, 92 negative, 44 of 92 steps back"``."""
+        words = {
+            "missing": f"{self.missing} zero",
+            "negative": f"{self.negative} negative",
+            "non_finite": f"{self.non_finite} not finite",
+            "rounded": f"{self.whole_seconds} whole seconds",
+            "non_increasing": f"{self.non_increasing} of {self.steps} steps not increasing",
+        }
+        problems = self.problems()
+        if not problems and self.valid < 2:
+            return "fewer than two valid stamps"
+        return ", ".join(words[kind] for kind in problems) or "no problem"
+
+
+def check_stamps(raw: ArrayLike, source: str = SOURCE_IPC) -> StampCheck:
+    """Count the problems of one sequence of scan times [s] (see :class:`StampCheck`)."""
+    raw = np.asarray(raw, dtype=np.float64).reshape(-1)
+    finite = np.isfinite(raw)
+    with np.errstate(invalid="ignore"):
+        missing = finite & (np.abs(raw) < MISSING_BELOW_S)
+        negative = finite & (raw <= -MISSING_BELOW_S)
+    values = raw[finite & ~missing & ~negative]
+    whole = int(np.count_nonzero(values == np.round(values)))
+    steps = np.diff(values)
+    rounded = values.size >= 3 and whole >= WHOLE_SECONDS_FRACTION * values.size
+    back = steps < 0.0 if rounded else steps <= 0.0
+    return StampCheck(
+        source=source,
+        count=int(raw.size),
+        missing=int(missing.sum()),
+        negative=int(negative.sum()),
+        non_finite=int((~finite).sum()),
+        whole_seconds=whole,
+        non_increasing=int(back.sum()),
+        steps=int(steps.size),
+        largest_step_back_s=float(-steps[back].min()) if back.any() else 0.0,
+        span_s=float(values.max() - values.min()) if values.size else 0.0,
+    )
+
+
+def _spread_whole_seconds(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Runs of equal whole-second stamps ``s`` (n scans) become ``s + i / n``: CARMEN truncates to the second."""
+    out = values.copy()
+    start = 0
+    for i in range(1, values.size + 1):
+        if i == values.size or values[i] != values[start]:
+            run = i - start
+            out[start:i] = values[start] + np.arange(run) / run
+            start = i
+    return out
+
+
+def _repair(raw: NDArray[np.float64], check: StampCheck, min_step: float) -> NDArray[np.float64]:
+    """Increasing stamps from a usable source: de-round, fill the invalid ones, nudge steps back."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(raw) & (raw >= MISSING_BELOW_S)
+    index = np.flatnonzero(valid)
+    values = raw[valid]
+    if check.rounded:
+        values = _spread_whole_seconds(values)
+    stamps = raw.copy()
+    stamps[valid] = values
+    if index.size < raw.size:
+        # Invalid stamps: linear in the scan index between valid neighbours, the median step beyond the ends.
+        gaps = np.diff(values) / np.diff(index)
+        step = float(np.median(gaps[gaps > 0])) if np.any(gaps > 0) else min_step
+        where = np.arange(raw.size)
+        filled = np.interp(where, index, values)
+        filled = np.where(where < index[0], values[0] - (index[0] - where) * step, filled)
+        filled = np.where(where > index[-1], values[-1] + (where - index[-1]) * step, filled)
+        stamps[~valid] = np.maximum(filled[~valid], min_step)
+    for i in range(1, stamps.size):
+        if stamps[i] <= stamps[i - 1]:
+            stamps[i] = stamps[i - 1] + min_step
+    return stamps
+
+
+def assign_stamps(raw: ArrayLike, period: float, min_step: float = MIN_STAMP_STEP_S) -> NDArray[np.float64]:
+    """Increasing stamps [s] from one source of times; one scan every ``period`` s if it is not usable."""
+    raw = np.asarray(raw, dtype=np.float64).reshape(-1)
+    if raw.size == 0:
+        return raw
+    check = check_stamps(raw)
+    if not check.usable:
+        return period * np.arange(1, raw.size + 1, dtype=np.float64)
+    return _repair(raw, check, min_step)
+
+
+@dataclass(frozen=True)
+class StampChoice:
+    """The stamps a conversion uses, where they come from, and the warnings (one line per problem kind)."""
+
+    stamps: NDArray[np.float64]
+    source: str
+    warnings: tuple[str, ...]
+
+
+def _problem_lines(check: StampCheck, *, repaired: bool, min_step: float) -> list[str]:
+    """One warning per problem kind of ``check``; ``repaired``: the source is used, say how it is fixed."""
+    n = check.count
+    lines = []
+    fill = "; filled in linearly between the scans around them" if repaired else ""
+    if check.missing:
+        lines.append(f"{check.missing} of {n} scans have no {check.source} (0){fill}")
+    if check.negative:
+        lines.append(f"{check.negative} of {n} scans have a negative {check.source}{fill}")
+    if check.non_finite:
+        lines.append(f"{check.non_finite} of {n} scans have a {check.source} that is not a finite number{fill}")
+    if check.rounded:
+        how = "; scans sharing a second are spread evenly over it" if repaired else ""
+        lines.append(f"{check.whole_seconds} of {check.valid} {check.source} values are whole seconds "
+                     f"(rounded){how}")
+    if check.non_increasing:
+        how = f"; each moved {min_step * 1e3:g} ms after the one before" if repaired else ""
+        lines.append(f"{check.non_increasing} of {check.steps} steps of {check.source} do not increase "
+                     f"(largest step back {check.largest_step_back_s:.3g} s){how}")
+    return lines
+
+
+def choose_stamps(
+    scans: list[CarmenScan], period: float, *, min_step: float = MIN_STAMP_STEP_S
+) -> StampChoice:
+    """Scan stamps [s]: the FLASER ``ipc_timestamp``, else its ``logger_timestamp``, else the ODOM lines' times,
+    else one scan every ``period`` s; with a warning line per problem kind and per fallback.
+    """
+    ipc = np.array([s.timestamp for s in scans], dtype=np.float64)
+    check = check_stamps(ipc, SOURCE_IPC)
+    if check.usable:
+        return StampChoice(_repair(ipc, check, min_step), SOURCE_IPC,
+                           tuple(_problem_lines(check, repaired=True, min_step=min_step)))
+    warnings = _problem_lines(check, repaired=False, min_step=min_step)
+    if not check.problems():
+        warnings.append(f"{check.source}: {check.describe()}")
+    alternatives = [
+        (SOURCE_LOGGER, np.array([s.logger_timestamp for s in scans], dtype=np.float64)),
+        (SOURCE_ODOM, np.array([s.odom_timestamp for s in scans], dtype=np.float64)),
+    ]
+    for source, raw in alternatives:
+        if np.all(np.isnan(raw)):
+            warnings.append(f"{source}: none in the log to fall back on")
+            continue
+        other = check_stamps(raw, source)
+        if np.array_equal(raw, ipc, equal_nan=True):
+            warnings.append(f"{source}: not usable either ({other.describe()}; the same values as the {SOURCE_IPC})")
+            continue
+        if other.usable:
+            what = " (the last ODOM line before each scan)" if source == SOURCE_ODOM else ""
+            warnings.append(f"{check.source} not usable: using the times of the {source}{what} instead")
+            warnings.extend(_problem_lines(other, repaired=True, min_step=min_step))
+            return StampChoice(_repair(raw, other, min_step), source, tuple(warnings))
+        warnings.append(f"{source}: not usable either ({other.describe()})")
+    warnings.append(f"no usable timestamps: assuming one scan every {period:g} s ({SOURCE_PERIOD})")
+    stamps = period * np.arange(1, len(scans) + 1, dtype=np.float64)
+    return StampChoice(stamps, SOURCE_PERIOD, tuple(warnings))
