@@ -32,6 +32,8 @@ setup(
         "opencv-python-headless==4.12.0.88",
         "rosbags==0.11.9",
         "mcap==1.6.0",
+        # Damaged bags: zstd chunks cut short are decoded block by block (ros/bag_recovery.py).
+        "zstandard==0.25.0",
         # The hot loops (ray casting, interval contraction) are compiled.
         "numba==0.62.1",
         # Nearest-neighbour queries and sparse indexes (IR), Gaussian filters.
