@@ -32,6 +32,8 @@ setup(
         "opencv-python-headless==4.12.0.88",
         "rosbags==0.11.9",
         "mcap==1.6.0",
+        # Damaged bags: zstd chunks cut short are decoded block by block (ros/bag_recovery.py).
+        "zstandard==0.25.0",
         # The hot loops (ray casting, interval contraction) are compiled.
         "numba==0.62.1",
         # Nearest-neighbour queries and sparse indexes (IR), Gaussian filters.
@@ -80,6 +82,7 @@ setup(
             "rls_run = robot_localization_suite.launch.runner:main",
             "rls_demo = robot_localization_suite.launch.demo:main",
             "rls_bench = robot_localization_suite.tools.bench:main",
+            "rls_bag_repair = robot_localization_suite.tools.bag_repair:main",
             "carmen_to_bag = robot_localization_suite.tools.carmen_to_bag:main",
             "build_topomap = robot_localization_suite.tools.build_topomap:main",
             "raycast_benchmark = robot_localization_suite.tools.raycast_benchmark:main",

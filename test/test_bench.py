@@ -167,6 +167,27 @@ def test_bag_without_ground_truth_reports_timing(tmp_path, capsys):
     assert fields["correct_rate"] is None and fields["correct"] is None
 
 
+def test_a_bag_cut_short_is_benchmarked_on_what_was_recovered(kidnap_bag, tmp_path):
+    """A recording that lost power at half: no footer, no metadata.yaml; the run uses the intact part and says so."""
+    path, truth = kidnap_bag
+    data = (path / "room_kidnap.mcap").read_bytes()
+    cut = tmp_path / "room_cut"
+    cut.mkdir()
+    (cut / "room_cut.mcap").write_bytes(data[: len(data) // 2])
+    summary = bench.run_benchmark([cut], [echo_spec(truth, constant_offset)], tmp_path / "out", isolate=False)
+    fields = summary["room_cut"]["echo"]
+    assert fields["recovered"] is True and 0 < fields["recovered_messages"] < 1 + 3 * 201
+    assert 0 < fields["outputs"] < 201 and fields["outputs"] == fields["inputs"]
+    assert fields["correct_rate"] == 1.0 and fields["map"] == "room_cut:/map"
+    last_scan = 100.0 + SCAN_PERIOD * (fields["inputs"] - 1)  # the odometry of the next step may have made it
+    assert last_scan - 1e-6 <= fields["recovered_until_s"] <= last_scan + SCAN_PERIOD + 1e-6
+    assert "recovered from a damaged bag" in (tmp_path / "out" / "summary.md").read_text()
+    assert (tmp_path / "out" / "plots" / "room_cut" / "echo_trajectory.png").is_file()
+    sound = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path / "sound", isolate=False,
+                                plots=False)["room_kidnap"]["echo"]
+    assert "recovered" not in sound
+
+
 def test_tracking_mode_sends_the_first_true_pose(kidnap_bag, tmp_path):
     path, truth = kidnap_bag
     built = []

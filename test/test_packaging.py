@@ -41,6 +41,7 @@ ROSDEP_KEYS = {
     "psutil": "python3-psutil",
     "rosbags": None,
     "mcap": None,
+    "zstandard": None,
 }
 
 

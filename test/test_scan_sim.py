@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -272,6 +273,40 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(
     # The kidnapping shows in ground truth only.
     truth = [m.msg.pose.pose.position for m in messages if m.topic == "/ground_truth"]
     assert (truth[20].x, truth[20].y) == pytest.approx((2.0, 3.0))
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_record_stopped_by_a_signal_finishes_its_bag_and_exits_0(tmp_path: Path, signum: signal.Signals) -> None:
+    """Ctrl-C or a service manager's stop: a complete bag of the steps so far, one line, no traceback."""
+    scenario_path = write_world(tmp_path, duration=3600.0, camera=False)  # ~20 s of recording: stopped long before
+    bag = tmp_path / "bag"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "robot_localization_suite.nodes.scan_sim", "--record", str(bag),
+         "--ros-args", "-p", f"scenario:={scenario_path}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not list(bag.glob("*.mcap")):
+            assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+            time.sleep(0.05)
+        time.sleep(0.5)
+        process.send_signal(signum)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert process.returncode == 0, err
+    assert "Traceback" not in err and err == ""
+    [line] = out.splitlines()
+    assert line.startswith(f"scan_sim: stopped early by {signum.name} at ") and "of 3600.0 s simulated" in line
+    written = int(line.split(" wrote ")[1].split()[0])
+    reading = read_bag(bag)  # footer, summary and metadata.yaml: no recovery needed
+    topics = [m.topic for m in reading]
+    assert reading.recovery is None and (bag / "metadata.yaml").is_file()
+    assert len(topics) == written > 4 and topics[0] == "/map"
+    assert topics.count("/odom") == topics.count("/ground_truth") == topics.count("/scan") == (written - 1) // 3
 
 
 def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

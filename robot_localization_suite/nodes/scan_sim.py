@@ -8,15 +8,19 @@ its end (``exit_at_end``); without, it drives on ``map_yaml`` by ``cmd_vel`` (ba
 clamped and logged, a stop after ``cmd_vel_timeout``).
 Record: ``scan_sim --record DIR --ros-args -p scenario:=FILE`` writes the whole scenario into an
 MCAP bag as fast as possible, without DDS; the ``--ros-args`` parameters are read here with the
-same names, types and ranges. Parameters: :class:`~robot_localization_suite.core.sim.settings.ScanSimSettings`.
+same names, types and ranges; SIGINT or SIGTERM ends it early with a complete bag (exit 0).
+Parameters: :class:`~robot_localization_suite.core.sim.settings.ScanSimSettings`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -202,6 +206,28 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+@contextlib.contextmanager
+def _stop_on_signals() -> Iterator[Callable[[], str | None]]:
+    """While recording, SIGINT and SIGTERM ask for a stop after the current step (so the bag is closed).
+
+    Yields the question the recorder asks: the signal's name once one came, else None.
+    """
+    received: list[str] = []
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may set handlers
+        yield lambda: None
+        return
+
+    def note(signum: int, _frame: object) -> None:
+        received.append(signal.Signals(signum).name)
+
+    previous = {number: signal.signal(number, note) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield lambda: received[0] if received else None
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv if argv is None else argv)
     from rclpy.utilities import remove_ros_args
@@ -213,16 +239,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     _add_arguments(pre)
     known, _ = pre.parse_known_args(plain)
     if known.record and not {"-h", "--help"} & set(plain):
-        try:
-            settings = settings_from_args(argv)
-            if not settings.scenario:
-                raise ScenarioError("--record needs a scenario (-p scenario:=FILE)")
-            from ..ros.sim_messages import record
+        with _stop_on_signals() as stop_requested:
+            try:
+                settings = settings_from_args(argv)
+                if not settings.scenario:
+                    raise ScenarioError("--record needs a scenario (-p scenario:=FILE)")
+                from ..ros.sim_messages import record
 
-            record(known.record, make_simulator(settings), settings)
-        except LocalizationSuiteError as exc:
-            print(f"scan_sim: {exc}", file=sys.stderr)
-            return 2
+                record(known.record, make_simulator(settings), settings, stop_requested=stop_requested)
+            except LocalizationSuiteError as exc:
+                print(f"scan_sim: {exc}", file=sys.stderr)
+                return 2
         return 0
     parser = help_parser(NODE_NAME, DESCRIPTION, (ScanSimSettings,), TOPICS)
     _add_arguments(parser)

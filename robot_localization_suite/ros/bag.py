@@ -3,17 +3,20 @@
 ``rosbags`` handles the container (``metadata.yaml`` + ``.mcap``, as
 ``ros2 bag record -s mcap`` makes it); messages are serialised and deserialised
 with rclpy's own CDR type support, so the bag holds exactly what a ROS 2 node
-publishes and the replay hands nodes the message classes they subscribe to.
+publishes and the replay hands nodes the message classes they subscribe to. A bag rosbags
+refuses (cut short, no footer, metadata.yaml missing or stale) is read by ``bag_recovery``:
+every complete message, with a warning and :attr:`BagMessages.recovery`.
 """
 
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer, WriterError
@@ -22,9 +25,14 @@ from rosbags.typesys import Stores, get_typestore
 
 from ..core.errors import BagError
 
-__all__ = ["BagMessage", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name"]
+if TYPE_CHECKING:
+    from .bag_recovery import RecoveredBag, Recovery
 
+__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name"]
+
+LOG = logging.getLogger(__name__)
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_WARNED: set[tuple[str, str]] = set()
 
 
 def message_type_name(msg_or_class: Any) -> str:
@@ -90,35 +98,93 @@ class BagWriter:
         self.count += 1
 
 
-def _open_reader(path: Path) -> Reader:
+def _stale_metadata(reader: Reader, path: Path) -> str | None:
+    """Why a bag's metadata.yaml disagrees with its MCAP files (rosbags trusts it for topics), or None."""
+    storages = getattr(reader.storage, "storages", None)
+    if not path.is_dir() or not storages or reader.compression_mode == "file":
+        return None
+    listed = {Path(storage.path).name for storage in storages}
+    if unlisted := sorted(p.name for p in path.glob("*.mcap") if p.name not in listed):
+        return f"metadata.yaml is stale: it does not list {unlisted}"
+    in_files = sum(storage.metadata.message_count for storage in storages)
+    if in_files != reader.message_count:
+        return f"metadata.yaml is stale: it counts {reader.message_count} messages, the MCAP files hold {in_files}"
+    return None
+
+
+def _open(path: Path) -> tuple[Reader | None, RecoveredBag | None]:
+    """rosbags' reader for a sound bag (today's path); else what ``bag_recovery`` finds, with a warning."""
     if not path.exists():
         raise BagError(f"bag {str(path)!r} does not exist")
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError) as exc:
-        raise BagError(f"bag {str(path)!r} cannot be read: {exc}") from exc
-    return reader
+    except Exception as exc:  # noqa: BLE001 - whatever rosbags refuses, the stream reader tries
+        reason = str(exc) or type(exc).__name__
+    else:
+        stale = _stale_metadata(reader, path)
+        if stale is None:
+            return reader, None
+        reader.close()
+        reason = stale
+    from .bag_recovery import recover  # the mcap stream reader, only for damaged bags
+
+    recovered = recover(path, reason)
+    key = (str(path.resolve()), recovered.recovery.summary())
+    if key not in _WARNED:  # once per bag and process: the benchmark reads a bag several times
+        _WARNED.add(key)
+        LOG.warning("bag %r is damaged (%s): %s", str(path), reason, recovered.recovery.summary())
+    return None, recovered
+
+
+class BagMessages(Iterator[BagMessage]):
+    """The messages of one reading of a bag, in log-time order.
+
+    ``recovery`` is None for a sound bag, else what was recovered from a damaged one
+    (:class:`~robot_localization_suite.ros.bag_recovery.Recovery`).
+    """
+
+    def __init__(self, messages: Iterator[BagMessage], recovery: Recovery | None,
+                 reader: Reader | None = None) -> None:
+        self._messages = messages
+        self._reader = reader
+        self.recovery = recovery
+
+    def __iter__(self) -> BagMessages:
+        return self
+
+    def __next__(self) -> BagMessage:
+        return next(self._messages)
+
+    def close(self) -> None:
+        """Release the bag's files (also done at the end of the messages)."""
+        close = getattr(self._messages, "close", None)
+        if close is not None:
+            close()
+        if self._reader is not None and self._reader.is_open:
+            self._reader.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - never raise from a finalizer
+            pass
 
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
-    """Topic name -> message type name of a bag."""
-    reader = _open_reader(Path(path))
+    """Topic name -> message type name of a bag (of what could be read, for a damaged one)."""
+    reader, recovered = _open(Path(path))
+    if recovered is not None:
+        return recovered.topics
+    assert reader is not None
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
         reader.close()
 
 
-def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
-    """Messages of a bag in log-time order, deserialised as rclpy messages.
-
-    Raises:
-        BagError: the bag is missing, corrupt, or holds an unknown message type.
-    """
-    reader = _open_reader(Path(path))
+def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
     try:
-        wanted = set(topics) if topics is not None else None
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
         classes = {c.id: _message_class(c.msgtype) for c in connections}
         try:
@@ -127,7 +193,37 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
         except (ReaderError, OSError, ValueError) as exc:
             raise BagError(f"bag {str(path)!r} is corrupt: {exc}") from exc
     finally:
-        reader.close()
+        if reader.is_open:
+            reader.close()
+
+
+def _recovered_messages(recovered: RecoveredBag, path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
+    classes: dict[str, type] = {}
+    try:
+        for topic, type_name, stamp_ns, raw in recovered.messages(wanted):
+            cls = classes.get(type_name) or classes.setdefault(type_name, _message_class(type_name))
+            yield BagMessage(topic, stamp_ns, deserialize_message(raw, cls))
+    except OSError as exc:
+        raise BagError(f"bag {str(path)!r} cannot be read: {exc}") from exc
+
+
+def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagMessages:
+    """Messages of a bag in log-time order, deserialised as rclpy messages.
+
+    A damaged bag (cut short, no footer, metadata.yaml missing or stale) yields every complete
+    message before the damage; a warning and the result's ``recovery`` say how many and where
+    reading stopped.
+
+    Raises:
+        BagError: the bag is missing, holds nothing readable, or an unknown message type.
+    """
+    path = Path(path)
+    wanted = set(topics) if topics is not None else None
+    reader, recovered = _open(path)
+    if recovered is not None:
+        return BagMessages(_recovered_messages(recovered, path, wanted), recovered.recovery)
+    assert reader is not None
+    return BagMessages(_sound_messages(reader, path, wanted), None, reader)
 
 
 def replay(

@@ -60,12 +60,21 @@ class StepMessages:
 
 
 def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
-           *, log: Callable[[str], None] = print) -> dict[str, int]:
-    """Run the simulator's scenario as fast as possible into a new MCAP bag; returns messages per topic."""
+           *, log: Callable[[str], None] = print,
+           stop_requested: Callable[[], str | None] = lambda: None) -> dict[str, int]:
+    """Run the simulator's scenario as fast as possible into a new MCAP bag; returns messages per topic.
+
+    ``stop_requested`` is asked after each step; a reason (e.g. ``"SIGINT"``) ends the recording
+    there with a complete bag (footer, metadata.yaml) of the steps written so far.
+    """
     scenario = simulator.scenario
+    if (reason := stop_requested()) is not None:
+        log(f"scan_sim: stopped by {reason} before recording began; nothing written")
+        return {}
     builder = StepMessages(simulator, settings, epoch=0.0)
     counts: dict[str, int] = {}
     started = time.perf_counter()
+    simulated = 0.0
     with BagWriter(bag_dir, compress=True) as writer:
         writer.write("/map", builder.map_message(), 0)
         counts["/map"] = 1
@@ -74,12 +83,17 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
             for topic, msg in builder.step_messages(step):
                 writer.write("/" + topic, msg, stamp_ns)
                 counts["/" + topic] = counts.get("/" + topic, 0) + 1
+            simulated = step.time
+            if (reason := stop_requested()) is not None:
+                break
     elapsed = time.perf_counter() - started
     size = sum(p.stat().st_size for p in Path(bag_dir).rglob("*") if p.is_file())
-    log(
-        f"scan_sim: recorded {scenario.name!r} ({scenario.end_time:.1f} s simulated, "
-        f"{len(scenario.kidnappings)} kidnappings) into {str(bag_dir)!r} in {elapsed:.1f} s: "
-        + ", ".join(f"{topic} {count}" for topic, count in counts.items())
-        + f"; {size / 1e6:.2f} MB"
-    )
+    written = ", ".join(f"{topic} {count}" for topic, count in counts.items()) + f"; {size / 1e6:.2f} MB"
+    if reason is not None:
+        log(f"scan_sim: stopped early by {reason} at {simulated:.1f} s of {scenario.end_time:.1f} s simulated; "
+            f"wrote {sum(counts.values())} messages into {str(bag_dir)!r}, a complete bag, in {elapsed:.1f} s: "
+            + written)
+    else:
+        log(f"scan_sim: recorded {scenario.name!r} ({scenario.end_time:.1f} s simulated, "
+            f"{len(scenario.kidnappings)} kidnappings) into {str(bag_dir)!r} in {elapsed:.1f} s: " + written)
     return counts

@@ -23,6 +23,7 @@ from ...core.grid_map import GridMap, load_map_yaml
 
 if TYPE_CHECKING:
     from ...ros.bag import BagMessage
+    from ...ros.bag_recovery import Recovery
 
 __all__ = [
     "SCAN_TOPIC",
@@ -57,6 +58,7 @@ class BagReference:
     kidnap_indices: NDArray[np.int64]
     map_msg_grid: GridMap | None
     sensor_counts: dict[str, int]
+    recovery: Recovery | None = None  # what was read back from a damaged bag; None: the bag is sound
 
     @property
     def has_scan(self) -> bool:
@@ -97,7 +99,7 @@ def _trajectory(messages: list[BagMessage]) -> metrics.Trajectory | None:
 
 
 def load_reference(path: str | os.PathLike[str]) -> BagReference:
-    """Read a bag's ground truth, odometry and map, and find its kidnappings."""
+    """Read a bag's ground truth, odometry and map, and find its kidnappings (of what is left of a damaged bag)."""
     from ...ros import conversions
     from ...ros.bag import bag_topics, read_bag
 
@@ -105,7 +107,8 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
     topics = bag_topics(path)
     truth_msgs, odom_msgs = [], []
     map_grid = None
-    for item in read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC]):
+    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC])
+    for item in messages:
         if item.topic == TRUTH_TOPIC:
             truth_msgs.append(item)
         elif item.topic == ODOM_TOPIC:
@@ -118,7 +121,8 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
     truth = _trajectory(truth_msgs)
     odometry = _trajectory(odom_msgs)
     kidnaps = metrics.detect_kidnappings(truth, odometry) if truth is not None else np.zeros(0, dtype=np.int64)
-    counts = _topic_counts(path)
+    recovery = messages.recovery
+    counts = recovery.topic_counts if recovery is not None else _topic_counts(path)
     return BagReference(
         name=path.name,
         path=path,
@@ -128,6 +132,7 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         kidnap_indices=kidnaps,
         map_msg_grid=map_grid,
         sensor_counts={t: counts.get(t, 0) for t in (SCAN_TOPIC, IMAGE_TOPIC)},
+        recovery=recovery,
     )
 
 

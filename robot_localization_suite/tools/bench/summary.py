@@ -19,6 +19,16 @@ from .replay import RunRecord
 __all__ = ["summarize_run", "summarize_global_fixes"]
 
 
+def _recovery_fields(reference: BagReference) -> dict[str, Any]:
+    """``recovered: true`` and how much, for a run on what was read back from a damaged bag."""
+    recovery = reference.recovery
+    if recovery is None:
+        return {}
+    last = recovery.last_log_time_ns
+    return {"recovered": True, "recovered_messages": recovery.messages,
+            "recovered_until_s": round(last * 1e-9, 3) if last is not None else None}
+
+
 def _rate(values: list[bool] | None) -> float | None:
     if not values:
         return None
@@ -75,6 +85,7 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
         fields["update_errors"] = record.update_errors
     if record.truncated:
         fields["truncated"] = True
+    fields.update(_recovery_fields(reference))
     if truth is None:
         fields["note"] = "bag has no /ground_truth: timing only"
     return fields, series
@@ -93,4 +104,5 @@ def summarize_global_fixes(record: GlobalFixRecord, reference: BagReference, *, 
     fields["ground_truth"] = reference.ground_truth is not None
     if record.truncated:
         fields["truncated"] = True
+    fields.update(_recovery_fields(reference))
     return fields

@@ -88,6 +88,9 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
                     notes.append(f"{key} {_fmt(fields[key])}")
             if fields.get("truncated"):
                 notes.append("truncated by --max-seconds")
+            if fields.get("recovered"):
+                notes.append(f"recovered from a damaged bag ({fields.get('recovered_messages')} messages, "
+                             f"to {_fmt(fields.get('recovered_until_s'))} s)")
             if fields.get("ground_truth") is False:
                 notes.append("no ground truth")
             if fields.get("update_errors"):
