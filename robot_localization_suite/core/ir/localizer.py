@@ -119,16 +119,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ScanError
+from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
+from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..motion import OdometryMotionModel, odometry_delta
 from ..scan import Scan
-from ..se2 import angle_difference, compose, relative, wrap_angle
+from ..se2 import compose, relative, wrap_angle
 from .index import MAX_HIT_CODE, FanModel, IndexSettings, IRIndex
 from .query import (
-    DistanceField,
     live_pattern_terms,
-    refine_poses,
     resample_scan,
     step1_positions,
     step2_poses,
@@ -138,6 +138,8 @@ from .query import (
 __all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 
 _LOG = logging.getLogger(__name__)
+# Added to reported covariances so that a collapsed cloud still gives a positive-definite one.
+_COVARIANCE_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
 
 
 @dataclass(frozen=True)
@@ -358,13 +360,6 @@ class IRSettings:
         return FanModel(rays=rays, max_range=float(min(limit, range_max, cap)), range_resolution=self.range_resolution)
 
 
-def _low_variance_resample(weights: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:
-    """Thrun et al., Probabilistic Robotics, table 4.4."""
-    cumulative = np.cumsum(weights / weights.sum())
-    points = (rng.uniform(0.0, 1.0 / count) + np.arange(count) / count) * cumulative[-1]
-    return np.minimum(np.searchsorted(cumulative, points, side="right"), len(weights) - 1)
-
-
 class IRLocalizer:
     """The IR initialiser (a :class:`~.localizer.GlobalFixer`) and its particle tracker (a :class:`~.localizer.Localizer`).
 
@@ -550,7 +545,7 @@ class IRLocalizer:
         return Estimate(
             stamp=scan.stamp,
             pose=poses[0].copy(),
-            covariance=_weighted_covariance(poses, weights),
+            covariance=_covariance(poses, weights),
             status=LocalizerStatus.AMBIGUOUS if len(poses) > 1 else LocalizerStatus.LOCALIZED,
             candidates=poses,
             candidate_weights=weights,
@@ -659,7 +654,7 @@ class IRLocalizer:
         # candidate gets about a fifth of 100 particles, the hundredth one at most one); copies are spread
         # over half a grid cell and half a heading step so that they explore the hypothesis.
         rank_prior = 1.0 / np.arange(1, len(candidates) + 1)
-        drawn = np.sort(_low_variance_resample(rank_prior, count, self._rng))
+        drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
         particles = candidates[drawn].copy()
         copies = np.concatenate([[False], drawn[1:] == drawn[:-1]])
         spread = np.array([self.settings.grid_resolution, self.settings.grid_resolution, self.settings.heading_step])
@@ -767,7 +762,7 @@ class IRLocalizer:
         estimate = self._tracking_estimate(
             scan.stamp, moved, {"phase": "tracking", "updated": True, "best_endpoint_score": best}, weights
         )
-        chosen = _low_variance_resample(weights, s.particle_count, self._rng)
+        chosen = low_variance_resample(weights, s.particle_count, self._rng)
         self.particles = moved[chosen]
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
         # Pose of the best-scoring particle before resampling, for diagnostics.
@@ -787,7 +782,11 @@ class IRLocalizer:
         s = self.settings
         if weights is None:
             weights = self.weights if self.weights is not None else np.full(len(particles), 1.0 / len(particles))
-        pose, spread = _cluster_mean(particles, weights)
+        pose = densest_neighbourhood_mean(particles, weights)
+        _, covariance = weighted_pose_statistics(particles, weights)
+        # The cloud's xy spread [m]: root of the summed position variances (RMS distance to the centroid).
+        spread = float(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0)))
+        covariance = covariance + _COVARIANCE_FLOOR
         details = {**details, "particles": len(particles), "spread_m": spread, "low_score_updates": self._low_score_updates}
         if np.isfinite(self._best_score):
             details.setdefault("best_endpoint_score", self._best_score)
@@ -797,7 +796,7 @@ class IRLocalizer:
         return Estimate(
             stamp=stamp,
             pose=pose,
-            covariance=_weighted_covariance(particles, weights),
+            covariance=covariance,
             status=status,
             candidates=particles.copy(),
             candidate_weights=weights.copy(),
@@ -809,30 +808,6 @@ class IRLocalizer:
         return {"settings": asdict(self.settings), "index": self.index.describe() if self.index else None}
 
 
-def _cluster_mean(particles: NDArray[np.float64], weights: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
-    """Weighted mean of the particles within 0.5 m / 25 degrees of the densest one, and the cloud's xy spread [m]."""
-    diff = particles[:, None, :2] - particles[None, :, :2]
-    close = (np.hypot(diff[..., 0], diff[..., 1]) <= 0.5) & (
-        np.abs(angle_difference(particles[:, None, 2], particles[None, :, 2])) <= math.radians(25.0)
-    )
-    support = close.astype(np.float64) @ weights
-    centre = int(np.argmax(support))
-    members = close[centre]
-    w = weights[members] / weights[members].sum()
-    mean_xy = w @ particles[members, :2]
-    mean_theta = math.atan2(float(w @ np.sin(particles[members, 2])), float(w @ np.cos(particles[members, 2])))
-    w_all = weights / weights.sum()
-    centroid = w_all @ particles[:, :2]
-    spread = float(np.sqrt(w_all @ np.sum((particles[:, :2] - centroid) ** 2, axis=1)))
-    return np.array([mean_xy[0], mean_xy[1], mean_theta]), spread
-
-
-def _weighted_covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Covariance of (x, y, theta) with theta differences wrapped around the weighted mean."""
-    if len(poses) == 0:
-        return np.full((3, 3), np.nan)
-    w = weights / weights.sum() if weights.sum() > 0 else np.full(len(poses), 1.0 / len(poses))
-    mean_theta = math.atan2(float(w @ np.sin(poses[:, 2])), float(w @ np.cos(poses[:, 2])))
-    centred = np.column_stack([poses[:, :2] - w @ poses[:, :2], angle_difference(poses[:, 2], mean_theta)])
-    covariance = (centred * w[:, None]).T @ centred
-    return covariance + np.diag([1e-6, 1e-6, 1e-8])
+def _covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weighted covariance of (x, y, theta) (heading wrapped around the mean), with a small floor."""
+    return weighted_pose_statistics(poses, weights)[1] + _COVARIANCE_FLOOR

@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import MapError, ScanError
+from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..raycast import RayCaster
@@ -103,7 +104,6 @@ from .matching import (
     check_live_profile,
     correlate_profiles,
     feature_distances,
-    refine_poses,
     sheet_features,
     sheet_sectors,
     truncated_scores,
@@ -343,7 +343,7 @@ class PilLocalizer:
         self.grid_map: GridMap | None = None
         self.learning: PilLearning | None = None
         self._caster: RayCaster | None = None
-        self._distance_field: NDArray[np.float32] | None = None
+        self._distance_field: DistanceField | None = None
         self._mapping: BeamMapping | None = None
         self._sheets_key: tuple[float, ...] | None = None
         self._sheet_features: NDArray[np.float32] | None = None
@@ -357,7 +357,7 @@ class PilLocalizer:
     def set_map(self, grid_map: GridMap) -> None:
         """Learn (or load) the pseudo-images of ``grid_map`` for the current sensor geometry."""
         self.grid_map = grid_map
-        self._distance_field = grid_map.distance_field()
+        self._distance_field = DistanceField(grid_map)
         self._learn()
         self.reinitialize()
 
@@ -629,17 +629,14 @@ class PilLocalizer:
             if angles.size > settings.refine_beams:
                 pick = np.round(np.linspace(0, angles.size - 1, settings.refine_beams)).astype(np.int64)
                 angles, ranges = angles[pick], ranges[pick]
-            assert self.grid_map is not None
-            better = refine_poses(
+            better, _ = refine_poses(
+                self._distance_field,
                 poses[:refined],
                 angles,
                 ranges,
-                self._distance_field,
-                self.grid_map.origin,
-                self.grid_map.resolution,
-                truncation=settings.refine_truncation,
                 iterations=settings.refine_iterations,
                 max_shift=settings.tile_size,
+                truncation=settings.refine_truncation,
             )
             both = np.concatenate([poses[:refined], better])
             cast = self._caster.cast(both, profile.sensor_angles)
