@@ -119,11 +119,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ScanError
+from ..filter.odometry_gate import OdometryGate
 from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
-from ..motion import OdometryMotionModel, odometry_delta
+from ..motion import OdometryMotionModel
 from ..scan import Scan
 from ..se2 import compose, relative, wrap_angle
 from .index import MAX_HIT_CODE, FanModel, IndexSettings, IRIndex
@@ -382,7 +383,8 @@ class IRLocalizer:
             alpha3=self.settings.alpha3,
             alpha4=self.settings.alpha4,
         )
-        self._odom: NDArray[np.float64] | None = None
+        # Latest odometry; the reference is the odometry at the last update (the particles' frame).
+        self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_tracking()
         if grid_map is not None:
             self.set_map(grid_map)
@@ -391,10 +393,8 @@ class IRLocalizer:
     def _reset_tracking(self) -> None:
         self.particles: NDArray[np.float64] | None = None
         self.weights: NDArray[np.float64] | None = None
-        self._particles_odom: NDArray[np.float64] | None = None  # odometry at the last update
-        self._last_scan_odom: NDArray[np.float64] | None = None
+        self.odometry.reset(force=False)
         self._low_score_updates = 0
-        self._update_requested = False
         self._best_score = float("nan")
         self._score_average = float("nan")
         self._updates_since_check = 0
@@ -421,9 +421,9 @@ class IRLocalizer:
             self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
-        self._odom = np.asarray(odom_pose, dtype=np.float64).copy()
-        if self.particles is not None and self._particles_odom is None:
-            self._particles_odom = self._odom.copy()
+        """Record odometry; non-finite or older poses are ignored."""
+        if self.odometry.add(stamp, odom_pose) and self.particles is not None and self.odometry.reference is None:
+            self.odometry.reference = self.odometry.latest
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Particles drawn around ``pose`` with the (x, y, theta) covariance."""
@@ -438,7 +438,7 @@ class IRLocalizer:
         self._reset_tracking()
 
     def request_nomotion_update(self) -> None:
-        self._update_requested = True
+        self.odometry.request_update()
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         """Initialise from this scan when needed, else track; an estimate for every usable scan.
@@ -453,12 +453,7 @@ class IRLocalizer:
             return self._initialise(scan, reason="start")
         if not scan.hit_mask.any():
             raise ScanError(f"scan at {scan.stamp:.3f} s has no hit to score the particles with")
-        if self._odom is not None and self._particles_odom is not None:
-            delta = odometry_delta(self._particles_odom, self._odom)
-            moved = delta.trans >= self.settings.update_min_d or abs(delta.rotation) >= self.settings.update_min_a
-        else:
-            moved = False
-        if moved or self._update_requested:
+        if self.odometry.due():
             estimate = self._update(scan)
             if estimate is not None:
                 return estimate
@@ -695,9 +690,8 @@ class IRLocalizer:
     def _start_tracking(self, particles: NDArray[np.float64], weights: NDArray[np.float64]) -> None:
         self.particles = particles
         self.weights = weights
-        self._particles_odom = None if self._odom is None else self._odom.copy()
+        self.odometry.mark_updated(self.odometry.latest)
         self._low_score_updates = 0
-        self._update_requested = False
 
     def _predicted_particles(self) -> NDArray[np.float64]:
         """Particles moved by the odometry since the last update, without noise."""
@@ -705,9 +699,10 @@ class IRLocalizer:
         return self._predicted_poses(self.particles)
 
     def _predicted_poses(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
-        if self._odom is None or self._particles_odom is None:
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if odom is None or reference is None:
             return poses
-        return compose(poses, relative(self._particles_odom, self._odom))
+        return compose(poses, relative(reference, odom))
 
     def endpoint_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64]:
         """Section IV-C-2: fraction of the scan's hit end-points (at most ``max_beams``) on occupied cells."""
@@ -731,12 +726,12 @@ class IRLocalizer:
         """Predict, weight, resample. None when the filter declares itself lost."""
         assert self.particles is not None
         s = self.settings
-        if self._odom is not None and self._particles_odom is not None:
-            moved = self._motion.sample(self.particles, self._particles_odom, self._odom, self._rng)
-            self._particles_odom = self._odom.copy()
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if odom is not None and reference is not None:
+            moved = self._motion.sample(self.particles, reference, odom, self._rng)
         else:
             moved = self.particles
-        self._update_requested = False
+        self.odometry.mark_updated(reference if odom is None else odom)
         self._fix_pose = None
         scores = self.endpoint_scores(scan, moved)
         best = float(scores.max(initial=0.0))

@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import MapError, ScanError
+from ..filter.odometry_gate import OdometryGate
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
@@ -349,8 +350,8 @@ class PilLocalizer:
         self._sheet_features: NDArray[np.float32] | None = None
         self._last_passes: NDArray[np.bool_] | None = None
         self._tracked_pose: NDArray[np.float64] | None = None
-        self._odom_at_tracked: NDArray[np.float64] | None = None
-        self._last_odom: NDArray[np.float64] | None = None
+        # Latest odometry; the reference is the odometry at the tracked pose (no gate: PIL runs on every scan).
+        self.odometry = OdometryGate()
         self._switch_evidence = 0.0
 
     # -- Localizer protocol -------------------------------------------------------
@@ -362,10 +363,8 @@ class PilLocalizer:
         self.reinitialize()
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
-        """Odometry moves the window centre between scans; it is not used otherwise."""
-        pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
-        if np.all(np.isfinite(pose)):
-            self._last_odom = pose
+        """Odometry moves the window centre between scans; it is not used otherwise (non-finite or older: ignored)."""
+        self.odometry.add(stamp, odom_pose)
 
     def on_scan(self, scan: Scan) -> Estimate:
         """Localize from one scan within the window (widened to the whole map when needed).
@@ -393,7 +392,7 @@ class PilLocalizer:
             self._tracked_pose = None
         else:
             self._tracked_pose = estimate.pose.copy()
-            self._odom_at_tracked = None if self._last_odom is None else self._last_odom.copy()
+            self.odometry.mark_updated(self.odometry.latest)
         return estimate
 
     def _prefer_window(self, search: _Search) -> _Search:
@@ -443,12 +442,12 @@ class PilLocalizer:
         if not np.all(np.isfinite(pose)):
             raise ValueError(f"initial pose must be finite, got {pose.tolist()!r}")
         self._tracked_pose = pose.copy()
-        self._odom_at_tracked = None if self._last_odom is None else self._last_odom.copy()
+        self.odometry.mark_updated(self.odometry.latest)
 
     def reinitialize(self) -> None:
         """Forget the last estimate: the next scan searches the whole map."""
         self._tracked_pose = None
-        self._odom_at_tracked = None
+        self.odometry.reset(force=False)
         self._switch_evidence = 0.0
 
     def request_nomotion_update(self) -> None:
@@ -568,9 +567,10 @@ class PilLocalizer:
         """The last estimate moved by the odometry received since (None: search the whole map)."""
         if self._tracked_pose is None:
             return None
-        if self._odom_at_tracked is None or self._last_odom is None:
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if reference is None or odom is None:
             return self._tracked_pose
-        return compose(self._tracked_pose, relative(self._odom_at_tracked, self._last_odom))
+        return compose(self._tracked_pose, relative(reference, odom))
 
     def _select_tiles(
         self, profile: LiveProfile, centre: NDArray[np.float64] | None
