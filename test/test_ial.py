@@ -15,9 +15,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcl_test_world import WAYPOINTS, _follow, office_map
-from robot_localization_suite.core.ial.kernels import contract_box, inmap_hull, obstacle_hull, pave
 
 from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.ial.kernels import contract_box, inmap_hull, obstacle_hull, pave
 from robot_localization_suite.core.ial.localizer import (
     IALSettings,
     IntervalLocalizer,

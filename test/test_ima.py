@@ -9,13 +9,6 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from robot_localization_suite.core.ima.tracking import (
-    Hypotheses,
-    ImageError,
-    ImaTopoLocalizer,
-    ImaTrackerSettings,
-    activity_update,
-)
 
 from robot_localization_suite.core.errors import MapError
 from robot_localization_suite.core.grid_map import GridMap
@@ -34,6 +27,13 @@ from robot_localization_suite.core.ima.matching import (
     panorama_width,
     save_topomap,
     slot_values,
+)
+from robot_localization_suite.core.ima.tracking import (
+    Hypotheses,
+    ImageError,
+    ImaTopoLocalizer,
+    ImaTrackerSettings,
+    activity_update,
 )
 from robot_localization_suite.core.se2 import angle_difference
 from robot_localization_suite.core.sim.camera import CameraRenderer

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer, ImaTrackerSettings
 
 from robot_localization_suite import registry
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.errors import MapError, ScenarioError
 from robot_localization_suite.core.ima.matching import ImaSettings, load_topomap
+from robot_localization_suite.core.ima.tracking import ImaTopoLocalizer, ImaTrackerSettings
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.se2 import angle_difference
 from robot_localization_suite.core.sim.scenario import load_scenario

@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
+
+from robot_localization_suite.core.errors import CacheError, ScanError
+from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ir.index import (
     NO_RETURN,
     FanModel,
@@ -27,11 +30,8 @@ from robot_localization_suite.core.ir.index import (
     extract_runs,
     pattern_terms,
 )
-from robot_localization_suite.core.ir.query import LiveScan, step2_poses
-
-from robot_localization_suite.core.errors import CacheError, ScanError
-from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
+from robot_localization_suite.core.ir.query import LiveScan, step2_poses
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import recall_at_k
 from robot_localization_suite.core.raycast import RayCaster

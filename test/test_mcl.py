@@ -12,7 +12,6 @@ import math
 import numpy as np
 import pytest
 from mcl_test_world import Drive, drive, office_map, pose_error
-from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 
 from robot_localization_suite.core.filter.particles import (
     cluster_particles,
@@ -24,6 +23,7 @@ from robot_localization_suite.core.filter.particles import (
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
+from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 from robot_localization_suite.core.scan import Scan
 
 

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from robot_localization_suite.core.pil.learning import TileGrid, default_cache_dir
-from robot_localization_suite.core.pil.levels import LEVEL_FUNCTION_NAMES
 
 from robot_localization_suite.core.errors import MapError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
+from robot_localization_suite.core.pil.learning import TileGrid, default_cache_dir
+from robot_localization_suite.core.pil.levels import LEVEL_FUNCTION_NAMES
 from robot_localization_suite.core.pil.localizer import PilLocalizer, PilSettings, make_level_functions
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
