@@ -48,8 +48,9 @@ class OdometryGate:
         keep_steps: never drop poses whose steps :meth:`take_steps` has not returned yet
             (for a caller that takes them at every scan, as IAL's bounded prediction).
 
-    A threshold of 0 makes every call with motion known due. ``forced`` (set by
-    :meth:`request_update` and :meth:`reset`) makes the next update due whatever the motion.
+    Either threshold reached makes an update due, so a threshold of 0 does as soon as the motion
+    is known. ``forced`` (set by :meth:`request_update` and :meth:`reset`) makes the next update
+    due whatever the motion.
     """
 
     def __init__(
