@@ -167,7 +167,7 @@ def test_the_node_handles_a_message_feed_its_extras_and_its_services() -> None:
         node._on_reinitialize(Empty.Request(), Empty.Response())
         assert localizer.boxes is None
         node._on_nomotion(Empty.Request(), Empty.Response())
-        assert localizer._force_update
+        assert localizer.odometry.forced
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

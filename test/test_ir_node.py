@@ -93,7 +93,7 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
 
         # the services, through their callbacks
         node._on_nomotion(Empty.Request(), Empty.Response())
-        assert localizer._update_requested
+        assert localizer.odometry.forced
         node._on_reinitialize(Empty.Request(), Empty.Response())
         assert not localizer.initialized
         node._on_scan(_scan_msg(scan_at(world, truth[-1], stamp=200.0)))

@@ -253,7 +253,7 @@ def test_a_scan_without_valid_beams_is_skipped_and_backward_odometry_ignored(off
     localizer.on_odometry(4.0, np.array([9.0, 9.0, 0.0]))  # older: ignored
     localizer.on_odometry(6.0, np.array([np.nan, 0.0, 0.0]))  # non-finite: ignored
     assert localizer.counters.ignored_odometry == 2
-    assert np.allclose(localizer._odometry_at(10.0), [1.0, 0.0, 0.0])
+    assert np.allclose(localizer.odometry.at(10.0), [1.0, 0.0, 0.0])
 
 
 def test_selective_resampling_resamples_only_degenerate_weights(office: GridMap, run: Drive) -> None:

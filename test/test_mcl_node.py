@@ -70,7 +70,7 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
         assert localizer.particle_count == 3000 and np.all(office.is_free(localizer.particles[:, :2]))
         assert np.ptp(localizer.particles[:, 0]) > 10.0
         node._on_nomotion(Empty.Request(), Empty.Response())
-        assert localizer._force_update
+        assert localizer.odometry.forced
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

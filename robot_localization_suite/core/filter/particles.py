@@ -36,6 +36,7 @@ __all__ = [
     "pose_bins",
     "cluster_particles",
     "weighted_pose_statistics",
+    "densest_neighbourhood_mean",
     "normalize_log_weights",
 ]
 
@@ -174,6 +175,21 @@ def cluster_particles(poses: ArrayLike) -> tuple[NDArray[np.int64], int]:
     return (labels[local[:, 0], local[:, 1], local[:, 2]] - 1).astype(np.int64), int(count)
 
 
+def _normalised(weights: ArrayLike, count: int) -> NDArray[np.float64]:
+    """Weights summing to 1 (uniform when they sum to 0 or less)."""
+    w = np.asarray(weights, dtype=np.float64)
+    total = w.sum()
+    return w / total if total > 0.0 else np.full(count, 1.0 / max(count, 1))
+
+
+def _weighted_mean(x: NDArray[np.float64], y: NDArray[np.float64], theta: NDArray[np.float64], w: NDArray[np.float64]) -> NDArray[np.float64]:
+    # Element-wise sums instead of BLAS products: OpenBLAS's thread start-up costs
+    # milliseconds on a busy 2-core machine for these thin (N, 3) products.
+    return np.array(
+        [(w * x).sum(), (w * y).sum(), math.atan2(float((w * np.sin(theta)).sum()), float((w * np.cos(theta)).sum()))]
+    )
+
+
 def weighted_pose_statistics(
     poses: ArrayLike, weights: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -181,16 +197,14 @@ def weighted_pose_statistics(
 
     Heading deviations are wrapped around the circular mean before the
     covariance, so a cloud straddling +-pi has a small heading variance.
+    Weights summing to 0 count as uniform; no pose gives NaN.
     """
-    poses_arr = np.asarray(poses, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    # Element-wise sums instead of BLAS products: OpenBLAS's thread start-up costs
-    # milliseconds on a busy 2-core machine for these thin (N, 3) products.
+    poses_arr = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if len(poses_arr) == 0:
+        return np.full(3, np.nan), np.full((3, 3), np.nan)
+    w = _normalised(weights, len(poses_arr))
     x, y, theta = poses_arr[:, 0], poses_arr[:, 1], poses_arr[:, 2]
-    mean = np.array(
-        [(w * x).sum(), (w * y).sum(), math.atan2(float((w * np.sin(theta)).sum()), float((w * np.cos(theta)).sum()))]
-    )
+    mean = _weighted_mean(x, y, theta, w)
     deviations = (x - mean[0], y - mean[1], np.asarray(angle_difference(theta, mean[2])))
     covariance = np.empty((3, 3))
     for i in range(3):
@@ -198,3 +212,30 @@ def weighted_pose_statistics(
         for j in range(i, 3):
             covariance[i, j] = covariance[j, i] = (weighted * deviations[j]).sum()
     return mean, covariance
+
+
+def densest_neighbourhood_mean(
+    poses: ArrayLike, weights: ArrayLike, *, radius: float = 0.5, angle: float = math.radians(25.0)
+) -> NDArray[np.float64]:
+    """Weighted mean pose ``(3,)`` of the poses within ``radius`` [m] and ``angle`` [rad] of the best-supported one.
+
+    The support of a pose is the weight of its neighbourhood; the mean of that
+    neighbourhood is one hypothesis, where the mean of all poses may fall between
+    two (IR's tracking estimate; O(N^2), meant for a few hundred poses).
+    """
+    poses_arr = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    if len(poses_arr) == 0:
+        return np.full(3, np.nan)
+    w = np.asarray(weights, dtype=np.float64)
+    if not w.sum() > 0.0:
+        w = np.ones(len(poses_arr))
+    diff = poses_arr[:, None, :2] - poses_arr[None, :, :2]
+    close = (np.hypot(diff[..., 0], diff[..., 1]) <= radius) & (
+        np.abs(angle_difference(poses_arr[:, None, 2], poses_arr[None, :, 2])) <= angle
+    )
+    # Unnormalised weights: normalising first would only add rounding that can flip near-ties.
+    support = close.astype(np.float64) @ w
+    members = close[int(np.argmax(support))]
+    inside = w[members] / w[members].sum()
+    chosen = poses_arr[members]
+    return _weighted_mean(chosen[:, 0], chosen[:, 1], chosen[:, 2], inside)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import MapError
+from ..filter.odometry_gate import MotionMeasure, OdometryGate
 from ..grid_map import GridMap
 from ..interval import (
     MAX_COORDINATE,
@@ -42,7 +43,7 @@ from ..interval import (
     normalize_angle_intervals,
 )
 from ..localizer import Estimate, LocalizerStatus
-from ..motion import _MIN_TRANSLATION_FOR_HEADING, odometry_delta
+from ..motion import _MIN_TRANSLATION_FOR_HEADING
 from ..scan import LaserMount, Scan
 from ..se2 import angle_difference, compose, inverse, wrap_angle
 from .kernels import merge_boxes, pave, summed_area_table
@@ -239,10 +240,10 @@ class IntervalLocalizer:
         self.obstacles: ObstacleGrid | None = None
         # None: localize globally (whole map) at the next scan.
         self.boxes: NDArray[np.float64] | None = None
-        self._odom_previous: NDArray[np.float64] | None = None
-        self._odom_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
-        self._motion_since_update = np.zeros(2)
-        self._force_update = True
+        # Base-frame odometry: the steps since the last scan and the path since the last update.
+        self.odometry = OdometryGate(
+            self.settings.update_min_d, self.settings.update_min_a, measure=MotionMeasure.PATH, keep_steps=True
+        )
         self._updates = 0
         if grid_map is not None:
             self.set_map(grid_map)
@@ -259,16 +260,13 @@ class IntervalLocalizer:
         self.reinitialize()
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
+        """Record odometry; non-finite or older poses are ignored."""
         pose = np.asarray(odom_pose, dtype=np.float64)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             return
         if self.mount.pose.any():
             pose = compose(pose, inverse(self.mount.pose))  # the bounds describe the base's motion
-        if self._odom_previous is not None:
-            self._odom_steps.append((self._odom_previous, pose))
-            delta = odometry_delta(self._odom_previous, pose)
-            self._motion_since_update += (delta.trans, abs(delta.rot1) + abs(delta.rot2))
-        self._odom_previous = pose
+        self.odometry.add(stamp, pose)
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         s = self.settings
@@ -281,29 +279,27 @@ class IntervalLocalizer:
         theta = float(wrap_angle(pose[2]))
         self.boxes = np.array([[pose[0] - half[0], pose[0] + half[0], pose[1] - half[1], pose[1] + half[1],
                                 theta - half[2], theta + half[2]]])
-        self._odom_steps.clear()
-        self._force_update = True
+        self.odometry.take_steps()  # the box is where the robot is now
+        self.odometry.request_update()
 
     def reinitialize(self) -> None:
         self.boxes = None
-        self._odom_steps.clear()
-        self._force_update = True
+        self.odometry.take_steps()
+        self.odometry.request_update()
 
     def request_nomotion_update(self) -> None:
-        self._force_update = True
+        self.odometry.request_update()
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         if self.obstacles is None:
             return None
         s = self.settings
-        steps, self._odom_steps = self._odom_steps, []
+        steps = self.odometry.take_steps()
         tracking = self.boxes is not None
-        if tracking and not self._force_update and (s.update_min_d > 0.0 or s.update_min_a > 0.0):
-            if self._motion_since_update[0] < s.update_min_d and self._motion_since_update[1] < s.update_min_a:
-                self.boxes = self.predict(self.boxes, steps)
-                return None
-        self._force_update = False
-        self._motion_since_update[:] = 0.0
+        if tracking and not self.odometry.due():
+            self.boxes = self.predict(self.boxes, steps)
+            return None
+        self.odometry.mark_updated(self.odometry.latest)
         self._updates += 1
         angles, range_lo, range_hi = beam_intervals(scan, range_error=s.range_error, max_beams=s.max_beams)
         details: dict[str, Any] = {"valid_beams": int(angles.size), "restarted": False}

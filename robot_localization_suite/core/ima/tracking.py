@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ImageError
+from ..filter.odometry_gate import OdometryGate
 from ..localizer import Estimate, LocalizerStatus
 from ..se2 import angle_difference, compose, relative, wrap_angle
 from .images import to_grey
@@ -127,9 +128,15 @@ class ImaTopoLocalizer:
         self.names = topomap.names
         spacing = self._node_spacing(self.node_xy)
         self._position_sigma = 0.5 * spacing
-        self._odom = np.zeros(3)
-        self._has_odom = False
+        # The odometry; the reference is the odometry at the last run of Code 3.1.
+        self.odometry = OdometryGate(self.settings.min_translation, self.settings.min_rotation)
         self.reinitialize()
+
+    @property
+    def _odom(self) -> NDArray[np.float64]:
+        """The latest odometry pose (the origin until the first one)."""
+        latest = self.odometry.latest
+        return np.zeros(3) if latest is None else latest
 
     @staticmethod
     def _node_spacing(xy: NDArray[np.float64]) -> float:
@@ -156,10 +163,9 @@ class ImaTopoLocalizer:
         self._anchor_xy: NDArray[np.float64] | None = None
         self._anchor_odom = self._odom.copy()
         self._anchor_node = -1
-        self._last_run_odom: NDArray[np.float64] | None = None
+        self.odometry.reset()
         self._heading_offset = 0.0
         self._heading_known = False
-        self._force_update = True
 
     def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike) -> None:
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
@@ -179,21 +185,19 @@ class ImaTopoLocalizer:
         self._anchor_node = node
         self._heading_offset = float(angle_difference(pose[2], self._odom[2]))
         self._heading_known = True
-        self._force_update = True
+        self.odometry.request_update()
 
     def request_nomotion_update(self) -> None:
-        self._force_update = True
+        self.odometry.request_update()
 
     def on_odometry(self, stamp: float, odom_pose: ArrayLike) -> None:
-        pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
-        if not np.all(np.isfinite(pose)):
-            return
-        if not self._has_odom:
+        first = self.odometry.latest is None
+        if not self.odometry.add(stamp, odom_pose):
+            return  # non-finite or older: ignored
+        if first:
             # The first odometry defines where the motion since start is measured from.
-            self._reset_odom = pose.copy()
-            self._anchor_odom = pose.copy()
-            self._has_odom = True
-        self._odom = pose
+            self._reset_odom = self._odom.copy()
+            self._anchor_odom = self._odom.copy()
 
     def on_image(self, stamp: float, image: ArrayLike) -> Estimate | None:
         """Run Code 3.1 when the robot moved enough since the last run; otherwise return None."""
@@ -201,22 +205,12 @@ class ImaTopoLocalizer:
             grey = to_grey(image)
         except ValueError as exc:
             raise ImageError(str(exc)) from exc
-        if not self._should_update():
+        if not self.odometry.due(self._odom):
             return None
-        self._force_update = False
-        self._last_run_odom = self._odom.copy()
+        self.odometry.mark_updated(self._odom)
         return self._update(float(stamp), grey)
 
     # -- Code 3.1 --------------------------------------------------------------------------
-    def _should_update(self) -> bool:
-        if self._force_update or self._last_run_odom is None:
-            return True
-        moved = relative(self._last_run_odom, self._odom)
-        return bool(
-            math.hypot(moved[0], moved[1]) >= self.settings.min_translation
-            or abs(moved[2]) >= self.settings.min_rotation
-        )
-
     def _displacement_since(self, odom_then: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
         """Odometry displacement ``(2,)`` since ``odom_then`` in the map frame (heading-corrected), and rotation."""
         motion = relative(odom_then, self._odom)  # in the frame of the odometry then

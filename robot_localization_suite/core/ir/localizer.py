@@ -31,16 +31,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ScanError
+from ..filter.odometry_gate import OdometryGate
+from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
+from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
-from ..motion import OdometryMotionModel, odometry_delta
+from ..motion import OdometryMotionModel
 from ..scan import Scan
-from ..se2 import angle_difference, compose, relative, wrap_angle
+from ..se2 import compose, relative, wrap_angle
 from .index import FanModel, IndexSettings, IRIndex
 from .query import (
-    DistanceField,
     live_pattern_terms,
-    refine_poses,
     resample_scan,
     step1_positions,
     step2_poses,
@@ -51,13 +52,8 @@ from .settings import IRSettings
 __all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 
 _LOG = logging.getLogger(__name__)
-
-
-def _low_variance_resample(weights: NDArray[np.float64], count: int, rng: np.random.Generator) -> NDArray[np.int64]:
-    """Thrun et al., Probabilistic Robotics, table 4.4."""
-    cumulative = np.cumsum(weights / weights.sum())
-    points = (rng.uniform(0.0, 1.0 / count) + np.arange(count) / count) * cumulative[-1]
-    return np.minimum(np.searchsorted(cumulative, points, side="right"), len(weights) - 1)
+# Added to reported covariances so that a collapsed cloud still gives a positive-definite one.
+_COVARIANCE_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
 
 
 class IRLocalizer:
@@ -82,7 +78,8 @@ class IRLocalizer:
             alpha3=self.settings.alpha3,
             alpha4=self.settings.alpha4,
         )
-        self._odom: NDArray[np.float64] | None = None
+        # Latest odometry; the reference is the odometry at the last update (the particles' frame).
+        self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_tracking()
         if grid_map is not None:
             self.set_map(grid_map)
@@ -91,10 +88,8 @@ class IRLocalizer:
     def _reset_tracking(self) -> None:
         self.particles: NDArray[np.float64] | None = None
         self.weights: NDArray[np.float64] | None = None
-        self._particles_odom: NDArray[np.float64] | None = None  # odometry at the last update
-        self._last_scan_odom: NDArray[np.float64] | None = None
+        self.odometry.reset(force=False)
         self._low_score_updates = 0
-        self._update_requested = False
         self._best_score = float("nan")
         self._score_average = float("nan")
         self._updates_since_check = 0
@@ -121,9 +116,9 @@ class IRLocalizer:
             self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
-        self._odom = np.asarray(odom_pose, dtype=np.float64).copy()
-        if self.particles is not None and self._particles_odom is None:
-            self._particles_odom = self._odom.copy()
+        """Record odometry; non-finite or older poses are ignored."""
+        if self.odometry.add(stamp, odom_pose) and self.particles is not None and self.odometry.reference is None:
+            self.odometry.reference = self.odometry.latest
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Particles drawn around ``pose`` with the (x, y, theta) covariance."""
@@ -138,7 +133,7 @@ class IRLocalizer:
         self._reset_tracking()
 
     def request_nomotion_update(self) -> None:
-        self._update_requested = True
+        self.odometry.request_update()
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         """Initialise from this scan when needed, else track; an estimate for every usable scan.
@@ -153,12 +148,7 @@ class IRLocalizer:
             return self._initialise(scan, reason="start")
         if not scan.hit_mask.any():
             raise ScanError(f"scan at {scan.stamp:.3f} s has no hit to score the particles with")
-        if self._odom is not None and self._particles_odom is not None:
-            delta = odometry_delta(self._particles_odom, self._odom)
-            moved = delta.trans >= self.settings.update_min_d or abs(delta.rotation) >= self.settings.update_min_a
-        else:
-            moved = False
-        if moved or self._update_requested:
+        if self.odometry.due():
             estimate = self._update(scan)
             if estimate is not None:
                 return estimate
@@ -245,7 +235,7 @@ class IRLocalizer:
         return Estimate(
             stamp=scan.stamp,
             pose=poses[0].copy(),
-            covariance=_weighted_covariance(poses, weights),
+            covariance=_covariance(poses, weights),
             status=LocalizerStatus.AMBIGUOUS if len(poses) > 1 else LocalizerStatus.LOCALIZED,
             candidates=poses,
             candidate_weights=weights,
@@ -354,7 +344,7 @@ class IRLocalizer:
         # candidate gets about a fifth of 100 particles, the hundredth one at most one); copies are spread
         # over half a grid cell and half a heading step so that they explore the hypothesis.
         rank_prior = 1.0 / np.arange(1, len(candidates) + 1)
-        drawn = np.sort(_low_variance_resample(rank_prior, count, self._rng))
+        drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
         particles = candidates[drawn].copy()
         copies = np.concatenate([[False], drawn[1:] == drawn[:-1]])
         spread = np.array([self.settings.grid_resolution, self.settings.grid_resolution, self.settings.heading_step])
@@ -395,9 +385,8 @@ class IRLocalizer:
     def _start_tracking(self, particles: NDArray[np.float64], weights: NDArray[np.float64]) -> None:
         self.particles = particles
         self.weights = weights
-        self._particles_odom = None if self._odom is None else self._odom.copy()
+        self.odometry.mark_updated(self.odometry.latest)
         self._low_score_updates = 0
-        self._update_requested = False
 
     def _predicted_particles(self) -> NDArray[np.float64]:
         """Particles moved by the odometry since the last update, without noise."""
@@ -405,9 +394,10 @@ class IRLocalizer:
         return self._predicted_poses(self.particles)
 
     def _predicted_poses(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
-        if self._odom is None or self._particles_odom is None:
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if odom is None or reference is None:
             return poses
-        return compose(poses, relative(self._particles_odom, self._odom))
+        return compose(poses, relative(reference, odom))
 
     def endpoint_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64]:
         """Section IV-C-2: fraction of the scan's hit end-points (at most ``max_beams``) on occupied cells."""
@@ -431,12 +421,12 @@ class IRLocalizer:
         """Predict, weight, resample. None when the filter declares itself lost."""
         assert self.particles is not None
         s = self.settings
-        if self._odom is not None and self._particles_odom is not None:
-            moved = self._motion.sample(self.particles, self._particles_odom, self._odom, self._rng)
-            self._particles_odom = self._odom.copy()
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if odom is not None and reference is not None:
+            moved = self._motion.sample(self.particles, reference, odom, self._rng)
         else:
             moved = self.particles
-        self._update_requested = False
+        self.odometry.mark_updated(reference if odom is None else odom)
         self._fix_pose = None
         scores = self.endpoint_scores(scan, moved)
         best = float(scores.max(initial=0.0))
@@ -462,7 +452,7 @@ class IRLocalizer:
         estimate = self._tracking_estimate(
             scan.stamp, moved, {"phase": "tracking", "updated": True, "best_endpoint_score": best}, weights
         )
-        chosen = _low_variance_resample(weights, s.particle_count, self._rng)
+        chosen = low_variance_resample(weights, s.particle_count, self._rng)
         self.particles = moved[chosen]
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
         # Pose of the best-scoring particle before resampling, for diagnostics.
@@ -482,7 +472,11 @@ class IRLocalizer:
         s = self.settings
         if weights is None:
             weights = self.weights if self.weights is not None else np.full(len(particles), 1.0 / len(particles))
-        pose, spread = _cluster_mean(particles, weights)
+        pose = densest_neighbourhood_mean(particles, weights)
+        _, covariance = weighted_pose_statistics(particles, weights)
+        # The cloud's xy spread [m]: root of the summed position variances (RMS distance to the centroid).
+        spread = float(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0)))
+        covariance = covariance + _COVARIANCE_FLOOR
         details = {**details, "particles": len(particles), "spread_m": spread, "low_score_updates": self._low_score_updates}
         if np.isfinite(self._best_score):
             details.setdefault("best_endpoint_score", self._best_score)
@@ -492,7 +486,7 @@ class IRLocalizer:
         return Estimate(
             stamp=stamp,
             pose=pose,
-            covariance=_weighted_covariance(particles, weights),
+            covariance=covariance,
             status=status,
             candidates=particles.copy(),
             candidate_weights=weights.copy(),
@@ -504,30 +498,6 @@ class IRLocalizer:
         return {"settings": asdict(self.settings), "index": self.index.describe() if self.index else None}
 
 
-def _cluster_mean(particles: NDArray[np.float64], weights: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
-    """Weighted mean of the particles within 0.5 m / 25 degrees of the densest one, and the cloud's xy spread [m]."""
-    diff = particles[:, None, :2] - particles[None, :, :2]
-    close = (np.hypot(diff[..., 0], diff[..., 1]) <= 0.5) & (
-        np.abs(angle_difference(particles[:, None, 2], particles[None, :, 2])) <= math.radians(25.0)
-    )
-    support = close.astype(np.float64) @ weights
-    centre = int(np.argmax(support))
-    members = close[centre]
-    w = weights[members] / weights[members].sum()
-    mean_xy = w @ particles[members, :2]
-    mean_theta = math.atan2(float(w @ np.sin(particles[members, 2])), float(w @ np.cos(particles[members, 2])))
-    w_all = weights / weights.sum()
-    centroid = w_all @ particles[:, :2]
-    spread = float(np.sqrt(w_all @ np.sum((particles[:, :2] - centroid) ** 2, axis=1)))
-    return np.array([mean_xy[0], mean_xy[1], mean_theta]), spread
-
-
-def _weighted_covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Covariance of (x, y, theta) with theta differences wrapped around the weighted mean."""
-    if len(poses) == 0:
-        return np.full((3, 3), np.nan)
-    w = weights / weights.sum() if weights.sum() > 0 else np.full(len(poses), 1.0 / len(poses))
-    mean_theta = math.atan2(float(w @ np.sin(poses[:, 2])), float(w @ np.cos(poses[:, 2])))
-    centred = np.column_stack([poses[:, :2] - w @ poses[:, :2], angle_difference(poses[:, 2], mean_theta)])
-    covariance = (centred * w[:, None]).T @ centred
-    return covariance + np.diag([1e-6, 1e-6, 1e-8])
+def _covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weighted covariance of (x, y, theta) (heading wrapped around the mean), with a small floor."""
+    return weighted_pose_statistics(poses, weights)[1] + _COVARIANCE_FLOOR

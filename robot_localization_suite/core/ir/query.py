@@ -15,8 +15,6 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from ..filter.gauss_newton import solve_symmetric_3x3
-from ..grid_map import GridMap
 from ..scan import Scan
 from ..se2 import wrap_angle
 from .index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
@@ -27,8 +25,6 @@ __all__ = [
     "live_pattern_terms",
     "step1_positions",
     "step2_poses",
-    "DistanceField",
-    "refine_poses",
     "suppress_duplicates",
 ]
 
@@ -318,175 +314,6 @@ def step2_poses(
     poses = poses.reshape(-1, 3)
     order = np.argsort(-scores, kind="stable")
     return poses[order], scores[order]
-
-
-class DistanceField:
-    """Bilinear distance [m] to the nearest occupied cell, and its gradient, at world points."""
-
-    def __init__(self, grid_map: GridMap) -> None:
-        self.distance = np.ascontiguousarray(grid_map.distance_field(), dtype=np.float64)
-        gy, gx = np.gradient(self.distance, grid_map.resolution)
-        self.grad_x = np.ascontiguousarray(gx)
-        self.grad_y = np.ascontiguousarray(gy)
-        self.resolution = grid_map.resolution
-        self.origin = np.asarray(grid_map.origin, dtype=np.float64)
-        self.outside = float(self.distance.max())
-
-    def lookup(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """``(d, dd/dx, dd/dy)`` at points ``(..., 2)``; off-map points get the largest distance."""
-        return _bilinear3(self.distance, self.grad_x, self.grad_y, points, self.origin, self.resolution, self.outside)
-
-
-@numba.njit(cache=True, nogil=True)
-def _bilinear3_flat(d, gx, gy, px, py, ox, oy, res, outside, out_d, out_gx, out_gy):
-    h, w = d.shape
-    for i in range(px.shape[0]):
-        fx = (px[i] - ox) / res - 0.5
-        fy = (py[i] - oy) / res - 0.5
-        ix = int(math.floor(fx))
-        iy = int(math.floor(fy))
-        if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
-            out_d[i] = outside
-            out_gx[i] = 0.0
-            out_gy[i] = 0.0
-            continue
-        ax = fx - ix
-        ay = fy - iy
-        w00 = (1 - ax) * (1 - ay)
-        w10 = ax * (1 - ay)
-        w01 = (1 - ax) * ay
-        w11 = ax * ay
-        out_d[i] = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
-        out_gx[i] = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
-        out_gy[i] = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
-
-
-def _bilinear3(d, gx, gy, points, origin, res, outside):
-    shape = points.shape[:-1]
-    flat = np.ascontiguousarray(points.reshape(-1, 2))
-    out = np.empty((3, flat.shape[0]))
-    _bilinear3_flat(d, gx, gy, flat[:, 0].copy(), flat[:, 1].copy(), origin[0], origin[1], res, outside, out[0], out[1], out[2])
-    return out[0].reshape(shape), out[1].reshape(shape), out[2].reshape(shape)
-
-
-@numba.njit(cache=True, nogil=True)
-def _sample(d, gx, gy, x, y, ox, oy, res, outside):
-    h, w = d.shape
-    fx = (x - ox) / res - 0.5
-    fy = (y - oy) / res - 0.5
-    ix = int(math.floor(fx))
-    iy = int(math.floor(fy))
-    if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
-        return outside, 0.0, 0.0
-    ax = fx - ix
-    ay = fy - iy
-    w00 = (1 - ax) * (1 - ay)
-    w10 = ax * (1 - ay)
-    w01 = (1 - ax) * ay
-    w11 = ax * ay
-    dist = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
-    dx = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
-    dy = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
-    return dist, dx, dy
-
-
-@numba.njit(cache=True, nogil=True)
-def _refine(d, gx, gy, ox, oy, res, outside, poses, bx, by, iterations, inv_two_sigma2, max_shift, max_turn, scores):
-    count = poses.shape[0]
-    beams = bx.shape[0]
-    for k in range(count):
-        x0, y0, t0 = poses[k, 0], poses[k, 1], poses[k, 2]
-        x, y, t = x0, y0, t0
-        for _ in range(iterations):
-            c, s = math.cos(t), math.sin(t)
-            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-            g0 = g1 = g2 = 0.0
-            for b in range(beams):
-                px = x + c * bx[b] - s * by[b]
-                py = y + s * bx[b] + c * by[b]
-                dist, dx, dy = _sample(d, gx, gy, px, py, ox, oy, res, outside)
-                weight = math.exp(-dist * dist * inv_two_sigma2)
-                if weight < 1e-6:
-                    continue
-                jt = dx * (-s * bx[b] - c * by[b]) + dy * (c * bx[b] - s * by[b])
-                h00 += weight * dx * dx
-                h01 += weight * dx * dy
-                h02 += weight * dx * jt
-                h11 += weight * dy * dy
-                h12 += weight * dy * jt
-                h22 += weight * jt * jt
-                g0 += weight * dx * dist
-                g1 += weight * dy * dist
-                g2 += weight * jt * dist
-            damping = 1e-6 * (h00 + h11 + h22) + 1e-12
-            h00 += damping
-            h11 += damping
-            h22 += damping
-            solved, sx, sy, st = solve_symmetric_3x3(h00, h01, h02, h11, h12, h22, g0, g1, g2)
-            if not solved:
-                break
-            x += sx
-            y += sy
-            t += st
-            ddx = x - x0
-            ddy = y - y0
-            norm = math.sqrt(ddx * ddx + ddy * ddy)
-            if norm > max_shift:
-                x = x0 + ddx * max_shift / norm
-                y = y0 + ddy * max_shift / norm
-            turn = (t - t0 + math.pi) % (2.0 * math.pi) - math.pi
-            if turn > max_turn:
-                turn = max_turn
-            elif turn < -max_turn:
-                turn = -max_turn
-            t = t0 + turn
-        c, s = math.cos(t), math.sin(t)
-        total = 0.0
-        for b in range(beams):
-            px = x + c * bx[b] - s * by[b]
-            py = y + s * bx[b] + c * by[b]
-            dist, _, _ = _sample(d, gx, gy, px, py, ox, oy, res, outside)
-            total += math.exp(-dist * dist * inv_two_sigma2)
-        poses[k, 0] = x
-        poses[k, 1] = y
-        poses[k, 2] = (t + math.pi) % (2.0 * math.pi) - math.pi
-        scores[k] = total / max(beams, 1)
-
-
-def refine_poses(
-    field: DistanceField,
-    poses: NDArray[np.float64],
-    beam_angles: NDArray[np.float64],
-    beam_ranges: NDArray[np.float64],
-    *,
-    iterations: int,
-    sigma: float,
-    max_shift: float,
-    max_turn: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Align each pose's hit end-points with the map (Gauss-Newton on the distance field, one pose at a time).
-
-    Residuals are end-point distances to the nearest occupied cell, weighted by
-    ``exp(-d^2 / 2 sigma^2)`` (outliers fade out); each pose moves at most
-    ``max_shift`` [m] and ``max_turn`` [rad] from where it started so that the
-    candidates stay distinct hypotheses.
-
-    Returns:
-        refined poses ``(K, 3)`` and their scores: the mean end-point likelihood
-        ``exp(-d^2 / 2 sigma^2)`` over the hits, in ``[0, 1]``.
-    """
-    poses = np.array(poses, dtype=np.float64, copy=True).reshape(-1, 3)
-    scores = np.zeros(len(poses))
-    if len(poses) == 0 or len(beam_ranges) == 0:
-        return poses, scores
-    bx = np.ascontiguousarray(beam_ranges * np.cos(beam_angles), dtype=np.float64)
-    by = np.ascontiguousarray(beam_ranges * np.sin(beam_angles), dtype=np.float64)
-    _refine(
-        field.distance, field.grad_x, field.grad_y, float(field.origin[0]), float(field.origin[1]), field.resolution,
-        field.outside, poses, bx, by, int(iterations), 1.0 / (2.0 * sigma * sigma), float(max_shift), float(max_turn),
-        scores,
-    )
-    return poses, scores
 
 
 @numba.njit(cache=True, nogil=True)

@@ -19,13 +19,13 @@ Notes (choices, departures, status, measured figures): docs/mcl.md.
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..filter.odometry_gate import OdometryGate
 from ..filter.particles import (
     cluster_particles,
     kld_particle_count,
@@ -36,7 +36,7 @@ from ..filter.particles import (
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
-from ..se2 import angle_difference, wrap_angle
+from ..se2 import wrap_angle
 from .sensor_models import BeamModel, LikelihoodFieldModel
 from .settings import LASER_MODEL_TYPES, RECOVERY_SAMPLINGS, ROBOT_MODEL_TYPES, MclSettings
 
@@ -44,7 +44,6 @@ __all__ = ["MclSettings", "MonteCarloLocalizer", "LASER_MODEL_TYPES", "ROBOT_MOD
 
 _MIN_INITIAL_STD_XY = 0.02  # [m]
 _MIN_INITIAL_STD_YAW = 0.01  # [rad]
-_ODOMETRY_BUFFER = 2000  # odometry poses kept for interpolation at scan stamps
 
 
 @dataclass
@@ -128,9 +127,8 @@ class MonteCarloLocalizer:
         self._free_mask: NDArray[np.bool_] | None = None
         self.particles = np.zeros((0, 3))
         self.log_weights = np.zeros(0)
-        self._odom_stamps: list[float] = []
-        self._odom_poses: list[NDArray[np.float64]] = []
-        self._update_odom: NDArray[np.float64] | None = None
+        # Odometry poses for interpolation at scan stamps; the reference is the odometry at the last update.
+        self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_filter_state()
         self.last_estimate: Estimate | None = None
         if self.settings.set_initial_pose:
@@ -181,21 +179,8 @@ class MonteCarloLocalizer:
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
         """Record an odometry pose ``(3,)`` [m, m, rad] at ``stamp`` [s]; older or non-finite ones are ignored."""
-        pose = np.asarray(odom_pose, dtype=np.float64).reshape(-1)
-        if pose.size != 3 or not np.all(np.isfinite(pose)) or not math.isfinite(stamp):
+        if not self.odometry.add(stamp, odom_pose):
             self.counters.ignored_odometry += 1
-            return
-        if self._odom_stamps and stamp < self._odom_stamps[-1]:
-            self.counters.ignored_odometry += 1
-            return
-        if self._odom_stamps and stamp == self._odom_stamps[-1]:
-            self._odom_poses[-1] = pose.copy()
-            return
-        self._odom_stamps.append(float(stamp))
-        self._odom_poses.append(pose.copy())
-        if len(self._odom_stamps) > 2 * _ODOMETRY_BUFFER:
-            del self._odom_stamps[:_ODOMETRY_BUFFER]
-            del self._odom_poses[:_ODOMETRY_BUFFER]
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Restart with ``max_particles`` drawn around ``pose`` ``(3,)`` with ``covariance`` ``(3, 3)``."""
@@ -213,7 +198,7 @@ class MonteCarloLocalizer:
 
     def request_nomotion_update(self) -> None:
         """Update on the next scan even if the robot has not moved."""
-        self._force_update = True
+        self.odometry.request_update()
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         """Filter update with ``scan`` (laser frame); ``None`` when no update was due or possible."""
@@ -224,21 +209,19 @@ class MonteCarloLocalizer:
         if beams is None:
             self.counters.skipped_scans += 1
             return None
-        odom = self._odometry_at(scan.stamp)
+        gate = self.odometry
+        odom = gate.at(scan.stamp)
         moved = False
         if odom is not None:
-            if self._update_odom is None:
-                self._update_odom = odom
+            if gate.reference is None:
+                gate.reference = odom
             else:
-                translation = math.hypot(odom[0] - self._update_odom[0], odom[1] - self._update_odom[1])
-                rotation = abs(float(angle_difference(odom[2], self._update_odom[2])))
-                moved = translation >= self.settings.update_min_d or rotation >= self.settings.update_min_a
-        if not (moved or self._force_update):
+                moved = gate.moved(odom)
+        if not (moved or gate.forced):
             return None
         if moved:
-            self.particles = self.motion_model.sample(self.particles, self._update_odom, odom, self.rng)
-            self._update_odom = odom
-        self._force_update = False
+            self.particles = self.motion_model.sample(self.particles, gate.reference, odom, self.rng)
+        gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 
     # -- internals --------------------------------------------------------------------
@@ -272,31 +255,13 @@ class MonteCarloLocalizer:
 
     def _reset_filter_state(self) -> None:
         """What a fresh cloud starts with: no odometry reference, recovery averages cleared."""
-        self._update_odom = None
-        self._force_update = True
+        self.odometry.reset()
         self._updates_since_resample = 0
         self.w_slow = 0.0
         self.w_fast = 0.0
         self._fit_slow = _RunningAverage(self.settings.recovery_alpha_slow)
         self._fit_fast = _RunningAverage(self.settings.recovery_alpha_fast)
         self._ever_localized = False
-
-    def _odometry_at(self, stamp: float) -> NDArray[np.float64] | None:
-        """Odometry pose at ``stamp``, interpolated between the bracketing poses (clamped at the ends)."""
-        stamps = self._odom_stamps
-        if not stamps:
-            return None
-        index = bisect.bisect_left(stamps, stamp)
-        if index <= 0:
-            return self._odom_poses[0]
-        if index >= len(stamps):
-            return self._odom_poses[-1]
-        t0, t1 = stamps[index - 1], stamps[index]
-        p0, p1 = self._odom_poses[index - 1], self._odom_poses[index]
-        ratio = (stamp - t0) / (t1 - t0)
-        out = p0 + ratio * (p1 - p0)
-        out[2] = wrap_angle(p0[2] + ratio * float(angle_difference(p1[2], p0[2])))
-        return out
 
     def _select_beams(self, scan: Scan) -> _Beams | None:
         """Valid beams of ``scan``, ``max_beams`` of them evenly spaced; None if there is none."""

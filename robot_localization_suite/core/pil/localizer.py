@@ -29,6 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import MapError, ScanError
+from ..filter.odometry_gate import OdometryGate
+from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..raycast import RayCaster
@@ -50,7 +52,6 @@ from .matching import (
     check_live_profile,
     correlate_profiles,
     feature_distances,
-    refine_poses,
     sheet_features,
     sheet_sectors,
     truncated_scores,
@@ -125,29 +126,27 @@ class PilLocalizer:
         self.grid_map: GridMap | None = None
         self.learning: PilLearning | None = None
         self._caster: RayCaster | None = None
-        self._distance_field: NDArray[np.float32] | None = None
+        self._distance_field: DistanceField | None = None
         self._mapping: BeamMapping | None = None
         self._sheets_key: tuple[float, ...] | None = None
         self._sheet_features: NDArray[np.float32] | None = None
         self._last_passes: NDArray[np.bool_] | None = None
         self._tracked_pose: NDArray[np.float64] | None = None
-        self._odom_at_tracked: NDArray[np.float64] | None = None
-        self._last_odom: NDArray[np.float64] | None = None
+        # Latest odometry; the reference is the odometry at the tracked pose (no gate: PIL runs on every scan).
+        self.odometry = OdometryGate()
         self._switch_evidence = 0.0
 
     # -- Localizer protocol -------------------------------------------------------
     def set_map(self, grid_map: GridMap) -> None:
         """Learn (or load) the pseudo-images of ``grid_map`` for the current sensor geometry."""
         self.grid_map = grid_map
-        self._distance_field = grid_map.distance_field()
+        self._distance_field = DistanceField(grid_map)
         self._learn()
         self.reinitialize()
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
-        """Odometry moves the window centre between scans; it is not used otherwise."""
-        pose = np.asarray(odom_pose, dtype=np.float64).reshape(3)
-        if np.all(np.isfinite(pose)):
-            self._last_odom = pose
+        """Odometry moves the window centre between scans; it is not used otherwise (non-finite or older: ignored)."""
+        self.odometry.add(stamp, odom_pose)
 
     def on_scan(self, scan: Scan) -> Estimate:
         """Localize from one scan within the window (widened to the whole map when needed).
@@ -175,7 +174,7 @@ class PilLocalizer:
             self._tracked_pose = None
         else:
             self._tracked_pose = estimate.pose.copy()
-            self._odom_at_tracked = None if self._last_odom is None else self._last_odom.copy()
+            self.odometry.mark_updated(self.odometry.latest)
         return estimate
 
     def _prefer_window(self, search: _Search) -> _Search:
@@ -225,12 +224,12 @@ class PilLocalizer:
         if not np.all(np.isfinite(pose)):
             raise ValueError(f"initial pose must be finite, got {pose.tolist()!r}")
         self._tracked_pose = pose.copy()
-        self._odom_at_tracked = None if self._last_odom is None else self._last_odom.copy()
+        self.odometry.mark_updated(self.odometry.latest)
 
     def reinitialize(self) -> None:
         """Forget the last estimate: the next scan searches the whole map."""
         self._tracked_pose = None
-        self._odom_at_tracked = None
+        self.odometry.reset(force=False)
         self._switch_evidence = 0.0
 
     def request_nomotion_update(self) -> None:
@@ -350,9 +349,10 @@ class PilLocalizer:
         """The last estimate moved by the odometry received since (None: search the whole map)."""
         if self._tracked_pose is None:
             return None
-        if self._odom_at_tracked is None or self._last_odom is None:
+        odom, reference = self.odometry.latest, self.odometry.reference
+        if reference is None or odom is None:
             return self._tracked_pose
-        return compose(self._tracked_pose, relative(self._odom_at_tracked, self._last_odom))
+        return compose(self._tracked_pose, relative(reference, odom))
 
     def _select_tiles(
         self, profile: LiveProfile, centre: NDArray[np.float64] | None
@@ -411,17 +411,14 @@ class PilLocalizer:
             if angles.size > settings.refine_beams:
                 pick = np.round(np.linspace(0, angles.size - 1, settings.refine_beams)).astype(np.int64)
                 angles, ranges = angles[pick], ranges[pick]
-            assert self.grid_map is not None
-            better = refine_poses(
+            better, _ = refine_poses(
+                self._distance_field,
                 poses[:refined],
                 angles,
                 ranges,
-                self._distance_field,
-                self.grid_map.origin,
-                self.grid_map.resolution,
-                truncation=settings.refine_truncation,
                 iterations=settings.refine_iterations,
                 max_shift=settings.tile_size,
+                truncation=settings.refine_truncation,
             )
             both = np.concatenate([poses[:refined], better])
             cast = self._caster.cast(both, profile.sensor_angles)

@@ -28,7 +28,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ScanError
-from ..filter.gauss_newton import solve_symmetric_3x3
 from ..scan import Scan
 from ..se2 import wrap_angle
 from .levels import LevelFunction
@@ -42,7 +41,6 @@ __all__ = [
     "feature_distances",
     "correlate_profiles",
     "truncated_scores",
-    "refine_poses",
     "BEAM_MAPPINGS",
     "check_live_profile",
     "sheet_sectors",
@@ -382,149 +380,6 @@ def truncated_scores(learned: NDArray[np.floating], live: LiveProfile, truncatio
     weights = live.weights
     squared = np.minimum((np.asarray(learned, dtype=np.float64) - live.intensities[None, :]) ** 2, truncation**2)
     return (squared * weights).sum(axis=1) / (max(float(weights.sum()), 1.0) * truncation**2)
-
-
-@numba.njit(cache=True, nogil=True)
-def _field_at(field: np.ndarray, gx: float, gy: float, resolution: float) -> tuple[float, float, float]:
-    """Bilinear value and gradient [per m] of a cell-centred field at cell coordinates (gx, gy)."""
-    height, width = field.shape
-    fx = gx - 0.5
-    fy = gy - 0.5
-    ix = int(math.floor(fx))
-    iy = int(math.floor(fy))
-    if ix < 0 or iy < 0 or ix >= width - 1 or iy >= height - 1:
-        return math.inf, 0.0, 0.0
-    tx = fx - ix
-    ty = fy - iy
-    v00 = field[iy, ix]
-    v10 = field[iy, ix + 1]
-    v01 = field[iy + 1, ix]
-    v11 = field[iy + 1, ix + 1]
-    value = (1 - tx) * (1 - ty) * v00 + tx * (1 - ty) * v10 + (1 - tx) * ty * v01 + tx * ty * v11
-    d_dx = ((1 - ty) * (v10 - v00) + ty * (v11 - v01)) / resolution
-    d_dy = ((1 - tx) * (v01 - v00) + tx * (v11 - v10)) / resolution
-    return value, d_dx, d_dy
-
-
-@numba.njit(cache=True, nogil=True)
-def _refine_kernel(
-    poses: np.ndarray,
-    angles: np.ndarray,
-    ranges: np.ndarray,
-    field: np.ndarray,
-    origin_x: float,
-    origin_y: float,
-    resolution: float,
-    truncation: float,
-    iterations: int,
-    max_shift: float,
-    out: np.ndarray,
-) -> None:
-    for c in range(poses.shape[0]):
-        x0 = poses[c, 0]
-        y0 = poses[c, 1]
-        x = x0
-        y = y0
-        theta = poses[c, 2]
-        for _ in range(iterations):
-            # Normal equations H step = -g, H symmetric 3 x 3 kept as six scalars.
-            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
-            g0 = g1 = g2 = 0.0
-            used = 0
-            for b in range(angles.shape[0]):
-                heading = theta + angles[b]
-                cos_h = math.cos(heading)
-                sin_h = math.sin(heading)
-                px = x + ranges[b] * cos_h
-                py = y + ranges[b] * sin_h
-                value, d_dx, d_dy = _field_at(field, (px - origin_x) / resolution, (py - origin_y) / resolution, resolution)
-                if value >= truncation:
-                    continue
-                j2 = ranges[b] * (-d_dx * sin_h + d_dy * cos_h)
-                h00 += d_dx * d_dx
-                h01 += d_dx * d_dy
-                h02 += d_dx * j2
-                h11 += d_dy * d_dy
-                h12 += d_dy * j2
-                h22 += j2 * j2
-                g0 += d_dx * value
-                g1 += d_dy * value
-                g2 += j2 * value
-                used += 1
-            if used < 3:
-                break
-            # Levenberg-style damping of the diagonal before the solve.
-            h00 = h00 * 1.001 + 1e-9
-            h11 = h11 * 1.001 + 1e-9
-            h22 = h22 * 1.001 + 1e-9
-            solved, s0, s1, s2 = solve_symmetric_3x3(h00, h01, h02, h11, h12, h22, g0, g1, g2)
-            if not solved:
-                break
-            # Bounded steps keep Gauss-Newton inside the basin of the candidate.
-            step_xy = math.hypot(s0, s1)
-            if step_xy > 0.1:
-                s0 *= 0.1 / step_xy
-                s1 *= 0.1 / step_xy
-            if abs(s2) > 0.1:
-                s2 = math.copysign(0.1, s2)
-            x += s0
-            y += s1
-            theta += s2
-            shift = math.hypot(x - x0, y - y0)
-            if shift > max_shift:
-                x = x0 + (x - x0) * max_shift / shift
-                y = y0 + (y - y0) * max_shift / shift
-            if step_xy < 1e-4 and abs(s2) < 1e-4:
-                break
-        out[c, 0] = x
-        out[c, 1] = y
-        out[c, 2] = math.atan2(math.sin(theta), math.cos(theta))
-
-
-def refine_poses(
-    poses: NDArray[np.float64],
-    beam_angles: NDArray[np.float64],
-    beam_ranges: NDArray[np.float64],
-    distance_field: NDArray[np.float32],
-    origin: tuple[float, float],
-    resolution: float,
-    *,
-    truncation: float,
-    iterations: int,
-    max_shift: float,
-) -> NDArray[np.float64]:
-    """Sub-tile refinement: scan endpoints pulled onto the map's obstacles (Gauss-Newton on the distance field).
-
-    Args:
-        poses: ``(P, 3)`` starting laser poses [m, m, rad].
-        beam_angles, beam_ranges: ``(B,)`` the live hits [rad, m].
-        distance_field: ``(H, W)`` distance to the nearest obstacle [m] (GridMap.distance_field).
-        origin, resolution: of the map [m].
-        truncation: endpoints farther than this from any obstacle are ignored [m].
-        iterations: Gauss-Newton iterations at most.
-        max_shift: the refined position stays within this distance of the start [m].
-
-    Returns:
-        ``(P, 3)`` refined poses.
-    """
-    poses = np.ascontiguousarray(poses, dtype=np.float64)
-    out = poses.copy()
-    if poses.shape[0] == 0 or beam_angles.size < 3:
-        return out
-    _refine_kernel(
-        poses,
-        np.ascontiguousarray(beam_angles, dtype=np.float64),
-        np.ascontiguousarray(beam_ranges, dtype=np.float64),
-        np.ascontiguousarray(distance_field, dtype=np.float32),
-        float(origin[0]),
-        float(origin[1]),
-        float(resolution),
-        float(truncation),
-        int(iterations),
-        float(max_shift),
-        out,
-    )
-    return out
 
 
 def check_live_profile(profile: LiveProfile, min_valid_fraction: float) -> None:

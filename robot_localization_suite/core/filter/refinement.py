@@ -1,0 +1,187 @@
+"""Scan-to-map refinement: Gauss-Newton on a bilinearly sampled distance field (PIL, IR).
+
+The end-points of a scan are pulled onto the map's obstacles by minimising their
+weighted squared distances to the nearest occupied cell, as in likelihood-field
+scan matching (Thrun et al., *Probabilistic Robotics* 6.4; Kohlbrecher et al.,
+Hector SLAM, 2011, for the Gauss-Newton step on an interpolated map).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..grid_map import GridMap
+from .gauss_newton import solve_symmetric_3x3
+
+__all__ = ["DistanceField", "refine_poses"]
+
+# Residuals whose Gaussian weight falls below this are left out of the normal equations.
+_MIN_WEIGHT = 1e-6
+
+
+class DistanceField:
+    """Distance [m] from a point to the nearest occupied cell of a map, sampled bilinearly with its gradient.
+
+    The gradient is the map's central-difference gradient, interpolated like the
+    distance (smoother than the derivative of the bilinear patch, which jumps at
+    cell borders). Off-map points have no distance (``inf``) and no gradient.
+    """
+
+    def __init__(self, grid_map: GridMap) -> None:
+        self.distance = np.ascontiguousarray(grid_map.distance_field(), dtype=np.float64)
+        gy, gx = np.gradient(self.distance, grid_map.resolution)
+        self.grad_x = np.ascontiguousarray(gx)
+        self.grad_y = np.ascontiguousarray(gy)
+        self.resolution = float(grid_map.resolution)
+        self.origin = np.asarray(grid_map.origin, dtype=np.float64)
+
+    def lookup(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(d, dd/dx, dd/dy)`` at world points ``(..., 2)`` [m, -, -]."""
+        pts = np.asarray(points, dtype=np.float64)
+        flat = np.ascontiguousarray(pts.reshape(-1, 2))
+        out = np.empty((3, flat.shape[0]))
+        _lookup(self.distance, self.grad_x, self.grad_y, flat, self.origin[0], self.origin[1], self.resolution, out)
+        shape = pts.shape[:-1]
+        return out[0].reshape(shape), out[1].reshape(shape), out[2].reshape(shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample(d, gx, gy, x, y, ox, oy, res):
+    """Bilinear distance and gradient at world point (x, y); (inf, 0, 0) off the map."""
+    h, w = d.shape
+    fx = (x - ox) / res - 0.5
+    fy = (y - oy) / res - 0.5
+    ix = int(math.floor(fx))
+    iy = int(math.floor(fy))
+    if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
+        return math.inf, 0.0, 0.0
+    ax = fx - ix
+    ay = fy - iy
+    w00 = (1 - ax) * (1 - ay)
+    w10 = ax * (1 - ay)
+    w01 = (1 - ax) * ay
+    w11 = ax * ay
+    dist = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
+    dx = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
+    dy = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
+    return dist, dx, dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _lookup(d, gx, gy, points, ox, oy, res, out):
+    for i in range(points.shape[0]):
+        out[0, i], out[1, i], out[2, i] = _sample(d, gx, gy, points[i, 0], points[i, 1], ox, oy, res)
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine(d, gx, gy, ox, oy, res, poses, bx, by, iterations, inv_two_sigma2, truncation, max_shift, max_turn, scores):
+    beams = bx.shape[0]
+    for k in range(poses.shape[0]):
+        x0, y0, t0 = poses[k, 0], poses[k, 1], poses[k, 2]
+        x, y, t = x0, y0, t0
+        for _ in range(iterations):
+            c, s = math.cos(t), math.sin(t)
+            h00 = h01 = h02 = h11 = h12 = h22 = 0.0
+            g0 = g1 = g2 = 0.0
+            for b in range(beams):
+                px = x + c * bx[b] - s * by[b]
+                py = y + s * bx[b] + c * by[b]
+                dist, dx, dy = _sample(d, gx, gy, px, py, ox, oy, res)
+                if dist >= truncation:
+                    continue
+                weight = math.exp(-dist * dist * inv_two_sigma2)
+                if weight < _MIN_WEIGHT:
+                    continue
+                jt = dx * (-s * bx[b] - c * by[b]) + dy * (c * bx[b] - s * by[b])
+                h00 += weight * dx * dx
+                h01 += weight * dx * dy
+                h02 += weight * dx * jt
+                h11 += weight * dy * dy
+                h12 += weight * dy * jt
+                h22 += weight * jt * jt
+                g0 += weight * dx * dist
+                g1 += weight * dy * dist
+                g2 += weight * jt * dist
+            # A little damping keeps H invertible when the end-points constrain only some directions.
+            damping = 1e-6 * (h00 + h11 + h22) + 1e-12
+            h00 += damping
+            h11 += damping
+            h22 += damping
+            solved, sx, sy, st = solve_symmetric_3x3(h00, h01, h02, h11, h12, h22, g0, g1, g2)
+            if not solved:
+                break
+            x += sx
+            y += sy
+            t += st
+            ddx = x - x0
+            ddy = y - y0
+            norm = math.sqrt(ddx * ddx + ddy * ddy)
+            if norm > max_shift:
+                x = x0 + ddx * max_shift / norm
+                y = y0 + ddy * max_shift / norm
+            turn = (t - t0 + math.pi) % (2.0 * math.pi) - math.pi
+            if turn > max_turn:
+                turn = max_turn
+            elif turn < -max_turn:
+                turn = -max_turn
+            t = t0 + turn
+        c, s = math.cos(t), math.sin(t)
+        total = 0.0
+        for b in range(beams):
+            px = x + c * bx[b] - s * by[b]
+            py = y + s * bx[b] + c * by[b]
+            dist, _, _ = _sample(d, gx, gy, px, py, ox, oy, res)
+            if dist < truncation:
+                total += math.exp(-dist * dist * inv_two_sigma2)
+        poses[k, 0] = x
+        poses[k, 1] = y
+        poses[k, 2] = (t + math.pi) % (2.0 * math.pi) - math.pi
+        scores[k] = total / max(beams, 1)
+
+
+def refine_poses(
+    field: DistanceField,
+    poses: ArrayLike,
+    beam_angles: ArrayLike,
+    beam_ranges: ArrayLike,
+    *,
+    iterations: int,
+    max_shift: float,
+    sigma: float = math.inf,
+    truncation: float = math.inf,
+    max_turn: float = math.pi,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Align each pose's end-points with the map (Gauss-Newton on the distance field, one pose at a time).
+
+    Args:
+        field: the map's :class:`DistanceField`.
+        poses: ``(K, 3)`` starting laser poses [m, m, rad].
+        beam_angles, beam_ranges: ``(B,)`` the scan's hits in the laser frame [rad, m].
+        iterations: Gauss-Newton iterations.
+        max_shift: each pose stays within this distance of where it started [m].
+        sigma: residual ``d`` weighted by ``exp(-d^2 / 2 sigma^2)`` (``inf``: weight 1) [m].
+        truncation: end-points this far or farther from any obstacle are left out [m].
+        max_turn: each pose turns at most this much from where it started [rad].
+
+    Returns:
+        refined poses ``(K, 3)`` and their scores, the mean end-point weight
+        ``exp(-d^2 / 2 sigma^2)`` (0 from ``truncation`` on and off the map) over the beams, in ``[0, 1]``.
+    """
+    out = np.array(poses, dtype=np.float64, copy=True).reshape(-1, 3)
+    scores = np.zeros(len(out))
+    angles = np.asarray(beam_angles, dtype=np.float64)
+    ranges = np.asarray(beam_ranges, dtype=np.float64)
+    if len(out) == 0 or ranges.size == 0:
+        return out, scores
+    bx = np.ascontiguousarray(ranges * np.cos(angles))
+    by = np.ascontiguousarray(ranges * np.sin(angles))
+    inv_two_sigma2 = 0.0 if math.isinf(sigma) else 1.0 / (2.0 * sigma * sigma)
+    _refine(
+        field.distance, field.grad_x, field.grad_y, float(field.origin[0]), float(field.origin[1]), field.resolution,
+        out, bx, by, int(iterations), inv_two_sigma2, float(truncation), float(max_shift), float(max_turn), scores,
+    )
+    return out, scores
