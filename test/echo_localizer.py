@@ -25,13 +25,13 @@ class EchoLocalizer:
         truth: metrics.Trajectory,
         error: Callable[[float], ArrayLike | None],
         *,
-        details: Callable[[float, np.ndarray], dict[str, Any]] | None = None,
+        fields: Callable[[float, np.ndarray], dict[str, Any]] | None = None,
         decoys: int = 0,
         truth_as_candidate: bool = False,
     ) -> None:
         self.truth = truth
         self.error = error
-        self.details = details
+        self.fields = fields
         self.decoys = decoys
         self.truth_as_candidate = truth_as_candidate
         self.grid_map = None
@@ -53,11 +53,11 @@ class EchoLocalizer:
             return None
         true_pose = self._true_pose(scan.stamp)
         pose = true_pose + np.asarray(offset, dtype=np.float64)
-        details = self.details(scan.stamp, true_pose) if self.details else {}
+        fields = self.fields(scan.stamp, true_pose) if self.fields else {}
         # truth_as_candidate: the truth is always the runner-up candidate (an ambiguous place).
         candidates = np.vstack([pose, true_pose]) if self.truth_as_candidate else np.zeros((0, 3))
         return Estimate(scan.stamp, pose, np.eye(3) * 0.01, LocalizerStatus.LOCALIZED, candidates=candidates,
-                        details=details)
+                        **fields)
 
     def global_fix(self, scan: Any) -> Estimate:
         """Ranked candidates: ``decoys`` wrong poses 5 m away first, then the error-shifted truth."""

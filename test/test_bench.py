@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.localizer import Place
 from robot_localization_suite.core.progress import progress_disabled
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
@@ -204,11 +205,11 @@ def test_tracking_mode_sends_the_first_true_pose(kidnap_bag, tmp_path):
     assert built[0].grid_map is not None and built[0].grid_map.width == 240
 
 
-def test_localizer_specific_fields_from_details(kidnap_bag, tmp_path):
+def test_method_specific_fields_from_the_typed_estimate(kidnap_bag, tmp_path):
     path, truth = kidnap_bag
     nodes = np.array([[1.0, 2.0], [5.0, 2.0], [5.0, 5.0]])
 
-    def details(stamp: float, true_pose: np.ndarray) -> dict:
+    def fields_at(stamp: float, true_pose: np.ndarray) -> dict:
         late = stamp - 100.0 >= 15.0
         # A box around the truth, theta interval shifted by 2 pi; the last 5 s the box is 1 m off.
         shift = 1.0 if late else 0.0
@@ -216,10 +217,10 @@ def test_localizer_specific_fields_from_details(kidnap_bag, tmp_path):
                         [true_pose[1] - 0.1, true_pose[1] + 0.1],
                         [true_pose[2] + 2 * np.pi - 0.1, true_pose[2] + 2 * np.pi + 0.1]])
         nearest = nodes[np.argmin(np.hypot(*(nodes - true_pose[:2]).T))]
-        return {"boxes": box[None], "place_xy": nearest if not late else nodes[2], "node_xy": nodes,
-                "heading_corrected": True}
+        place = Place("node", nearest if not late else nodes[2], nodes)
+        return {"boxes": box[None], "place": place, "heading_corrected": True}
 
-    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset, details=details)], tmp_path,
+    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset, fields=fields_at)], tmp_path,
                                  isolate=False, plots=False)["room_kidnap"]["echo"]
     assert fields["containment_rate"] == pytest.approx(150 / 201, abs=1e-4)
     # The last 5 s the truth is near node 1 or 2 and the output says node 2: right only when nearest is node 2.

@@ -23,12 +23,11 @@ from robot_localization_suite.core.ial.localizer import (
     IntervalLocalizer,
     ObstacleGrid,
     beam_intervals,
-    boxes_contain,
     boxes_hull,
-    compose_boxes,
 )
-from robot_localization_suite.core.interval import angle_hull, interval_cos, interval_mul, interval_sin
+from robot_localization_suite.core.interval import angle_hull, compose_boxes, interval_cos, interval_mul, interval_sin
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
+from robot_localization_suite.core.metrics import boxes_contain
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount, Scan
 from robot_localization_suite.core.se2 import compose, wrap_angle
@@ -293,7 +292,7 @@ def test_a_global_fix_from_one_scan_contains_the_truth_and_ranks_it_first(office
     for truth in ([3.0, 4.5, 0.3], [12.5, 3.0, -2.0], [9.0, 8.0, 1.5]):
         scan = bounded_scan(office, truth, rng, outliers=5)
         estimate = localizer.global_fix(scan)
-        assert boxes_contain(estimate.details["boxes"], truth)
+        assert boxes_contain(estimate.boxes, truth)
         assert np.hypot(*(estimate.pose[:2] - np.asarray(truth[:2]))) < 0.2  # best candidate first
         assert abs(wrap_angle(estimate.pose[2] - truth[2])) < math.radians(5.0)
         assert estimate.details["box_count"] == len(estimate.candidates)
@@ -307,7 +306,7 @@ def test_tracking_keeps_the_truth_and_the_hull_is_small_once_the_robot_moved_2_m
     for k in range(len(scans)):
         localizer.on_odometry(0.1 * k, odometry[k])
         estimate = localizer.on_scan(scans[k])
-        assert boxes_contain(estimate.details["boxes"], truth[k]), k
+        assert boxes_contain(estimate.boxes, truth[k]), k
         assert not estimate.details["restarted"], k
         if k:
             travelled += float(np.hypot(*(truth[k, :2] - truth[k - 1, :2])))
@@ -331,13 +330,13 @@ def test_an_empty_list_restarts_global_localization(office) -> None:
         if estimate.details["restarted"]:
             restarts.append(k)
             assert estimate.status is LocalizerStatus.LOST
-        assert boxes_contain(estimate.details["boxes"], truth[k]), k
+        assert boxes_contain(estimate.boxes, truth[k]), k
     assert restarts == [40]
     # a wrong initial pose empties the list on the first scan, and the same scan relocalizes
     localizer.set_initial_pose(truth[-1] + np.array([4.0, 0.0, 0.0]), np.diag([0.01, 0.01, 0.001]))
     estimate = localizer.on_scan(scans[-1])
     assert estimate.details["restarted"] and estimate.status is LocalizerStatus.LOST
-    assert boxes_contain(estimate.details["boxes"], truth[-1])
+    assert boxes_contain(estimate.boxes, truth[-1])
 
 
 def test_the_same_input_gives_the_same_boxes(office) -> None:
@@ -348,7 +347,7 @@ def test_the_same_input_gives_the_same_boxes(office) -> None:
         boxes = []
         for k in range(len(scans)):
             localizer.on_odometry(0.1 * k, odometry[k])
-            boxes.append(localizer.on_scan(scans[k]).details["boxes"])
+            boxes.append(localizer.on_scan(scans[k]).boxes)
         outputs.append(boxes)
     for first, second in zip(*outputs, strict=True):
         assert np.array_equal(first, second)
@@ -365,7 +364,7 @@ def test_too_few_valid_beams_leave_the_boxes_uncontracted_with_a_warning(office)
     estimate = localizer.on_scan(Scan(1.0, ANGLES_360.copy(), ranges, 0.1, RANGE_MAX))
     assert "warning" in estimate.details and "5 valid readings" in estimate.details["warning"]
     assert estimate.details["valid_beams"] == 5
-    assert np.array_equal(estimate.details["boxes"].reshape(-1, 6), before)
+    assert np.array_equal(estimate.boxes.reshape(-1, 6), before)
     assert estimate.status is not LocalizerStatus.LOST
     # globally, the whole map stays
     fresh = IntervalLocalizer(settings, office)
@@ -391,7 +390,7 @@ def test_the_outputs_describe_the_hull_and_rank_the_boxes(office) -> None:
     truth = np.array([12.5, 3.0, -2.0])
     localizer = IntervalLocalizer(IALSettings(), office)
     estimate = localizer.on_scan(bounded_scan(office, truth, rng))
-    boxes = estimate.details["boxes"].reshape(-1, 6)
+    boxes = estimate.boxes.reshape(-1, 6)
     hull = boxes_hull(boxes)
     assert estimate.pose[:2] == pytest.approx(0.5 * (hull[0:4:2] + hull[1:4:2]))
     assert np.diag(estimate.covariance) == pytest.approx((hull[1::2] - hull[0::2]) ** 2 / 12.0)
@@ -439,7 +438,7 @@ def test_the_outlier_case_of_section_5_3_misleads_mcl_while_the_boxes_keep_the_t
         ial.on_odometry(scan.stamp, odometry)
         mcl.request_nomotion_update()
         particle_estimate = mcl.on_scan(scan)
-        boxes = ial.on_scan(scan).details["boxes"]
+        boxes = ial.on_scan(scan).boxes
         assert boxes_contain(boxes, case.true_poses[k]), k
     # MCL settled on the twin, more than 2 m from the truth; IAL also keeps the twin (indistinguishable)
     assert np.hypot(*(particle_estimate.pose[:2] - case.twin_poses[-1, :2])) < 0.3

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,9 @@ from mcl_test_world import WAYPOINTS, _follow, office_map
 from visualization_msgs.msg import Marker, MarkerArray
 
 from robot_localization_suite import registry
-from robot_localization_suite.core.ial.localizer import IALSettings, IntervalLocalizer, boxes_contain
+from robot_localization_suite.core.ial.localizer import IALSettings, IntervalLocalizer
 from robot_localization_suite.core.localizer import LocalizerStatus
+from robot_localization_suite.core.metrics import boxes_contain
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount
 from robot_localization_suite.core.se2 import compose
@@ -63,14 +65,14 @@ def test_build_extras_draws_each_box_its_headings_and_the_hull() -> None:
     assert len(by_namespace["ial_boxes"].points) == 8 * count  # four segments per box
     assert len(by_namespace["ial_headings"].points) == 4 * count  # two rays per box
     assert len(by_namespace["ial_hull"].points) == 8
-    box = estimate.details["boxes"][0]
+    box = estimate.boxes[0]
     xs = [p.x for p in by_namespace["ial_boxes"].points[:8]]
     assert min(xs) == pytest.approx(box[0, 0]) and max(xs) == pytest.approx(box[0, 1])
     assert all(m.header.frame_id == "map" for m in markers.markers)
     assert markers.markers[1].header.stamp.sec == 2 and markers.markers[1].header.stamp.nanosec == 500_000_000
     assert len(boxes_markers(estimate, max_boxes=1).markers[1].points) == 8
     # an empty list (LOST) only clears the display
-    estimate.details["boxes"] = np.zeros((0, 3, 2))
+    estimate = replace(estimate, boxes=np.zeros((0, 3, 2)))
     assert len(boxes_markers(estimate).markers) == 1
 
 
@@ -92,7 +94,7 @@ def test_the_bounded_floor_bag_replayed_through_the_adapter_keeps_the_truth_in_t
         else:
             output = adapter.on_scan_msg(message.msg)
             details = output.estimate.details
-            contained.append(boxes_contain(details["boxes"], truth))
+            contained.append(boxes_contain(output.estimate.boxes, truth))
             restarts.append(details["restarted"])
             statuses.append(output.estimate.status)
     assert len(contained) == 1395
@@ -120,7 +122,7 @@ def test_boxes_are_published_in_the_base_frame_with_a_laser_mount() -> None:
         output = adapter.on_scan_msg(conversions.scan_to_msg(0.1 * k, "laser", angle_min=ANGLES[0],
                                                              angle_increment=ANGLES[1] - ANGLES[0], ranges=ranges[k],
                                                              range_min=0.1, range_max=10.0))
-        boxes = output.estimate.details["boxes"]
+        boxes = output.estimate.boxes
         assert boxes_contain(boxes, truth[k]), k  # base pose in the base-frame boxes
         assert not output.estimate.details["restarted"], k
     assert np.hypot(*(output.estimate.pose[:2] - truth[-1, :2])) < 0.1  # the adapter's base pose
@@ -159,7 +161,7 @@ def test_the_node_handles_a_message_feed_its_extras_and_its_services() -> None:
         assert len(published) == len(truth)
         last = published[-1]
         assert last.estimate.status is LocalizerStatus.LOCALIZED
-        assert boxes_contain(last.estimate.details["boxes"], truth[-1])
+        assert boxes_contain(last.estimate.boxes, truth[-1])
         assert isinstance(last.extras["boxes"], MarkerArray)
         values = {kv.key: kv.value for kv in last.diagnostics.status[0].values}
         assert int(values["box_count"]) == last.estimate.details["box_count"]

@@ -301,8 +301,9 @@ def test_tracker_localizes_globally_and_updates_only_after_motion(tracker: ImaTo
     tracker.on_odometry(0.0, np.array([10.0, -3.0, 1.0]))  # odometry has its own frame
     estimate = tracker.on_image(0.0, camera.render(np.array([x, y, 2.0]), None, rng))
     assert estimate is not None and estimate.details["place"] == "EAST"
-    assert np.allclose(estimate.details["place_xy"], [x, y]) and estimate.details["node_xy"].shape == (3, 2)
-    assert estimate.details["heading_corrected"] and abs(angle_difference(estimate.pose[2], 2.0)) < math.radians(3)
+    assert np.allclose(estimate.place.xy, [x, y]) and estimate.place.node_xy.shape == (3, 2)
+    assert estimate.place.name == "EAST"
+    assert estimate.heading_corrected and abs(angle_difference(estimate.pose[2], 2.0)) < math.radians(3)
     assert estimate.candidates.shape[1] == 3 and estimate.candidate_weights.sum() == pytest.approx(1.0)
     # no motion: no update; 0.2 m: still none; 0.35 m or 12 degrees: an update
     assert tracker.on_image(0.5, camera.render(np.array([x, y, 2.0]), None, rng)) is None
@@ -324,7 +325,7 @@ def test_a_black_image_gives_no_destination_only_the_odometry_guess(tracker: Ima
     blind = tracker.on_image(1.0, np.zeros((120, 160), dtype=np.uint8))
     assert blind is not None
     assert blind.details["kind"] == "supposed" and blind.details["destinations"] == 0
-    assert blind.details["place"] == "MIDDLE" and not blind.details["heading_corrected"]
+    assert blind.details["place"] == "MIDDLE" and blind.heading_corrected is False
     assert len(blind.candidates) == 1
     # saturated, too; and the origins were kept (no reset without destinations)
     tracker.on_odometry(2.0, np.array([2.0, 0.0, 0.5]))

@@ -171,9 +171,9 @@ def test_lab_camera_targets_correct_place_heading_and_kidnap_recovery(repo_root:
         estimate = output.estimate
         true_pose = truth[round(estimate.stamp, 3)]
         details = estimate.details
-        correct.append(metrics.nearest_node_is_place(details["place_xy"], details["node_xy"], true_pose))
+        correct.append(metrics.nearest_node_is_place(estimate.place.xy, estimate.place.node_xy, true_pose))
         stamps.append(estimate.stamp)
-        if details["heading_corrected"]:
+        if estimate.heading_corrected:
             heading_errors.append(abs(math.degrees(angle_difference(estimate.pose[2], true_pose[2]))))
         assert output.extras["place"].data == details["place"]
     correct = np.asarray(correct)

@@ -9,10 +9,14 @@ import pytest
 from mcl_test_world import drive, office_map
 
 from robot_localization_suite import registry
+from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
+from robot_localization_suite.core.scan import LaserMount
+from robot_localization_suite.core.se2 import compose, inverse
 from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.adapter import LocalizerAdapter
 
 
 def test_the_plugin_builds_the_filter_from_the_packaged_params_file() -> None:
@@ -75,3 +79,39 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
         node.destroy_node()
         rclpy.try_shutdown()
     assert math.isfinite(published[-1].update_ms)
+
+
+def test_a_new_map_reseeds_around_the_laser_pose_with_a_mount_offset() -> None:
+    """The adapter turns the core's laser estimate into a base estimate without touching the core's own.
+
+    MCL keeps its last estimate and reseeds around it on a new map; were the adapter to rewrite that
+    estimate in place (as it once did), the new cloud would sit on the base pose, 0.32 m from the laser.
+    """
+    office = office_map()
+    mount = LaserMount(0.3, 0.1, 0.2)
+    run = drive(office, steps=60, seed=4)  # run.truth: the laser's poses, scans cast from them
+    base = compose(run.truth, inverse(mount.pose))
+    localizer = MonteCarloLocalizer(MclSettings(min_particles=500, max_particles=3000, random_seed=1))
+    adapter = LocalizerAdapter(localizer, node_name="mcl_baseline", log=lambda *_: None, mount=mount)
+    adapter.set_map(office)
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, base[0], np.diag([0.05**2, 0.05**2, 0.05**2])))
+    output = None
+    for k, scan in enumerate(run.scans):
+        adapter.on_odom_msg(conversions.odometry_to_msg(run.stamps[k], compose(run.odometry[k], inverse(mount.pose)),
+                                                       frame_id="odom"))
+        output = adapter.on_scan_msg(conversions.scan_to_msg(
+            scan.stamp, "laser", angle_min=scan.angles[0], angle_increment=scan.angles[1] - scan.angles[0],
+            ranges=scan.ranges, range_min=scan.range_min, range_max=scan.range_max,
+        )) or output
+    assert output is not None and output.estimate.status is LocalizerStatus.LOCALIZED
+    k = int(np.argmin(np.abs(run.stamps - output.estimate.stamp)))  # the last update's scan
+    assert np.hypot(*(output.estimate.pose[:2] - base[k, :2])) < 0.1  # the published pose is the base's
+    assert localizer.last_estimate is not None
+    assert np.hypot(*(localizer.last_estimate.pose[:2] - run.truth[k, :2])) < 0.1  # the core's is the laser's
+
+    changed = GridMap(office.data.copy(), office.resolution, office.origin)
+    changed.data[5:10, 5:10] = 100  # a new box far from the robot: a different map
+    adapter.set_map(changed)
+    centre = localizer.particles[:, :2].mean(axis=0)
+    assert np.hypot(*(centre - run.truth[k, :2])) < 0.1
+    assert np.hypot(*(centre - base[k, :2])) > 0.2

@@ -37,6 +37,7 @@ __all__ = [
     "interval_sin",
     "normalize_angle_intervals",
     "angle_hull",
+    "compose_boxes",
     "scalar_mul",
     "scalar_cos",
     "scalar_sin",
@@ -195,3 +196,25 @@ def angle_hull(lo: ArrayLike, hi: ArrayLike) -> tuple[float, float]:
     if widest == len(gaps) - 1:
         return float(starts[0]), float(ends[-1])
     return float(starts[widest + 1]), float(ends[widest]) + TWO_PI
+
+
+def compose_boxes(boxes: NDArray[np.float64], offset: ArrayLike) -> NDArray[np.float64]:
+    """Boxes of poses ``(K, 6)`` composed with a fixed pose ``offset`` (3,): ``[q] (+) offset``, outward."""
+    offset = np.asarray(offset, dtype=np.float64)
+    out = np.array(boxes, dtype=np.float64, copy=True)
+    if not np.any(offset):
+        return out
+    c_lo, c_hi = interval_cos(boxes[:, 4], boxes[:, 5])
+    s_lo, s_hi = interval_sin(boxes[:, 4], boxes[:, 5])
+    cx_lo, cx_hi = interval_mul(c_lo, c_hi, offset[0], offset[0])
+    sy_lo, sy_hi = interval_mul(s_lo, s_hi, offset[1], offset[1])
+    sx_lo, sx_hi = interval_mul(s_lo, s_hi, offset[0], offset[0])
+    cy_lo, cy_hi = interval_mul(c_lo, c_hi, offset[1], offset[1])
+    out[:, 0] = boxes[:, 0] + cx_lo - sy_hi - 3 * OUTWARD
+    out[:, 1] = boxes[:, 1] + cx_hi - sy_lo + 3 * OUTWARD
+    out[:, 2] = boxes[:, 2] + sx_lo + cy_lo - 3 * OUTWARD
+    out[:, 3] = boxes[:, 3] + sx_hi + cy_hi + 3 * OUTWARD
+    out[:, 4], out[:, 5] = normalize_angle_intervals(
+        boxes[:, 4] + offset[2] - OUTWARD, boxes[:, 5] + offset[2] + OUTWARD
+    )
+    return out

@@ -8,6 +8,7 @@ through :class:`Localizer` (laser methods) or :class:`CameraLocalizer`
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -19,6 +20,7 @@ from .scan import Scan
 
 __all__ = [
     "LocalizerStatus",
+    "Place",
     "Estimate",
     "Localizer",
     "CameraLocalizer",
@@ -35,9 +37,24 @@ class LocalizerStatus(enum.Enum):
     LOST = "LOST"
 
 
-@dataclass
+@dataclass(frozen=True)
+class Place:
+    """A topological place an estimate names (IMA).
+
+    Attributes:
+        name: the place's name in the topological map.
+        xy: ``(2,)`` its position in the map [m].
+        node_xy: ``(N, 2)`` every place's position, to tell whether the named one is the nearest.
+    """
+
+    name: str
+    xy: NDArray[np.float64]
+    node_xy: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
 class Estimate:
-    """One output of a localizer.
+    """One output of a localizer: a value, never changed once made (``dataclasses.replace`` makes another).
 
     Attributes:
         stamp: the stamp of the input that produced it [s].
@@ -46,8 +63,10 @@ class Estimate:
         status: the localizer's own verdict.
         candidates: ``(K, 3)`` particles, candidates or box centres, best first where ranked.
         candidate_weights: ``(K,)`` weights of the candidates, or None.
-        details: method-specific extras for diagnostics and visualisation
-            (e.g. ``hypotheses``, ``boxes``, ``place``); keys are snake_case strings.
+        boxes: ``(K, 3, 2)`` boxes of poses guaranteed to hold the true one (IAL), in the frame of ``pose``.
+        place: the topological place named (IMA), or None.
+        heading_corrected: whether the heading was corrected from a match (IMA), None where it does not apply.
+        details: scalar diagnostics (``/diagnostics`` key-values: counts, scores, reasons), snake_case keys.
     """
 
     stamp: float
@@ -56,7 +75,10 @@ class Estimate:
     status: LocalizerStatus
     candidates: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     candidate_weights: NDArray[np.float64] | None = None
-    details: dict[str, Any] = field(default_factory=dict)
+    boxes: NDArray[np.float64] | None = None
+    place: Place | None = None
+    heading_corrected: bool | None = None
+    details: Mapping[str, Any] = field(default_factory=dict)
 
 
 @runtime_checkable

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from functools import cached_property
 from typing import Any
 
@@ -246,8 +247,23 @@ class LocalizerAdapter:
     def to_base(self, laser_poses: NDArray[np.float64]) -> NDArray[np.float64]:
         return compose(laser_poses, self._mount_inv)
 
+    def to_base_estimate(self, estimate: Estimate) -> Estimate:
+        """The core's estimate of the laser, as a new estimate of the base (the core's own is left as it is)."""
+        if not self.mount.pose.any():
+            return estimate
+        boxes = estimate.boxes
+        if boxes is not None and len(boxes):
+            from ..core.interval import compose_boxes  # numba: only for localizers that publish boxes
+
+            boxes = compose_boxes(boxes.reshape(-1, 6), self._mount_inv).reshape(-1, 3, 2)
+        return replace(
+            estimate,
+            pose=self.to_base(estimate.pose),
+            candidates=self.to_base(estimate.candidates) if len(estimate.candidates) else estimate.candidates,
+            boxes=boxes,
+        )
+
     def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
-        estimate.pose = self.to_base(estimate.pose)
-        if len(estimate.candidates):
-            estimate.candidates = self.to_base(estimate.candidates)
-        return AdapterOutput(estimate, update_ms, self.node_name, self.max_candidates, self._extras_builder)
+        return AdapterOutput(
+            self.to_base_estimate(estimate), update_ms, self.node_name, self.max_candidates, self._extras_builder
+        )

@@ -58,7 +58,7 @@ def _rectangle_segments(x_lo: float, x_hi: float, y_lo: float, y_hi: float) -> l
 
 def boxes_markers(estimate: Estimate, max_boxes: int = MAX_DRAWN_BOXES) -> MarkerArray:
     """Box rectangles, heading ranges (two rays from each centre) and the hull, in the ``map`` frame."""
-    boxes = np.asarray(estimate.details.get("boxes", np.zeros((0, 3, 2))), dtype=np.float64).reshape(-1, 3, 2)
+    boxes = np.zeros((0, 3, 2)) if estimate.boxes is None else np.asarray(estimate.boxes, dtype=np.float64).reshape(-1, 3, 2)
     clear = Marker()
     clear.header.stamp = seconds_to_stamp(estimate.stamp)
     clear.header.frame_id = "map"
@@ -88,7 +88,7 @@ def boxes_markers(estimate: Estimate, max_boxes: int = MAX_DRAWN_BOXES) -> Marke
 
 def place_message(estimate: Estimate) -> String:
     """The name of the estimated place."""
-    return String(data=str(estimate.details.get("place", "")))
+    return String(data=estimate.place.name if estimate.place is not None else "")
 
 
 IAL_BOXES = {"boxes": Extra(MarkerArray, boxes_markers)}

@@ -35,7 +35,8 @@ import numpy as np
 from ..core.errors import MapError
 from ..core.grid_map import GridMap, load_map_yaml
 from ..core.ial.kernels import contract_box, obstacle_hull
-from ..core.ial.localizer import IALSettings, IntervalLocalizer, ObstacleGrid, beam_intervals, boxes_contain
+from ..core.ial.localizer import IALSettings, IntervalLocalizer, ObstacleGrid, beam_intervals
+from ..core.metrics import boxes_contain
 from ..core.raycast import RayCaster
 from ..core.scan import Scan
 
@@ -151,7 +152,7 @@ def measure(grid_map: GridMap, *, trials: int, beams: int, range_error: float, o
         estimate = localizer.global_fix(scan)
         results["global_s"].append(time.perf_counter() - start)
         results["global_boxes"].append(estimate.details["box_count"])
-        results["global_contains"].append(boxes_contain(estimate.details["boxes"], pose))
+        results["global_contains"].append(boxes_contain(estimate.boxes, pose))
 
         offset = rng.uniform(-0.5, 0.5, 3) * np.array([0.5, 0.5, math.radians(10.0)])
         centre = pose + offset

@@ -35,8 +35,8 @@ from ..grid_map import GridMap
 from ..interval import (
     MAX_COORDINATE,
     OUTWARD,
-    TWO_PI,
     angle_hull,
+    compose_boxes,
     interval_cos,
     interval_mul,
     interval_sin,
@@ -55,9 +55,6 @@ __all__ = [
     "ObstacleGrid",
     "IterationResult",
     "boxes_hull",
-    "boxes_contain",
-    "boxes_to_base",
-    "compose_boxes",
     "odometry_step_bounds",
     "beam_intervals",
 ]
@@ -130,48 +127,6 @@ def boxes_hull(boxes: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array(
         [boxes[:, 0].min(), boxes[:, 1].max(), boxes[:, 2].min(), boxes[:, 3].max(), theta_lo, theta_hi]
     )
-
-
-def boxes_contain(boxes: ArrayLike, pose: ArrayLike) -> bool:
-    """Whether a pose ``(3,)`` lies in the union of boxes, given as ``(K, 6)`` or ``(K, 3, 2)``."""
-    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 6)
-    pose = np.asarray(pose, dtype=np.float64)
-    if boxes.shape[0] == 0:
-        return False
-    inside_xy = (
-        (boxes[:, 0] <= pose[0]) & (pose[0] <= boxes[:, 1]) & (boxes[:, 2] <= pose[1]) & (pose[1] <= boxes[:, 3])
-    )
-    # Shift the heading into each box's frame: the first representative at or above theta_lo.
-    theta = boxes[:, 4] + np.mod(pose[2] - boxes[:, 4], TWO_PI)
-    inside_theta = (theta <= boxes[:, 5]) | (boxes[:, 5] - boxes[:, 4] >= TWO_PI)
-    return bool(np.any(inside_xy & inside_theta))
-
-
-def compose_boxes(boxes: NDArray[np.float64], offset: ArrayLike) -> NDArray[np.float64]:
-    """Boxes of poses ``(K, 6)`` composed with a fixed pose ``offset`` (3,): ``[q] (+) offset``, outward."""
-    offset = np.asarray(offset, dtype=np.float64)
-    out = np.array(boxes, dtype=np.float64, copy=True)
-    if not np.any(offset):
-        return out
-    c_lo, c_hi = interval_cos(boxes[:, 4], boxes[:, 5])
-    s_lo, s_hi = interval_sin(boxes[:, 4], boxes[:, 5])
-    cx_lo, cx_hi = interval_mul(c_lo, c_hi, offset[0], offset[0])
-    sy_lo, sy_hi = interval_mul(s_lo, s_hi, offset[1], offset[1])
-    sx_lo, sx_hi = interval_mul(s_lo, s_hi, offset[0], offset[0])
-    cy_lo, cy_hi = interval_mul(c_lo, c_hi, offset[1], offset[1])
-    out[:, 0] = boxes[:, 0] + cx_lo - sy_hi - 3 * OUTWARD
-    out[:, 1] = boxes[:, 1] + cx_hi - sy_lo + 3 * OUTWARD
-    out[:, 2] = boxes[:, 2] + sx_lo + cy_lo - 3 * OUTWARD
-    out[:, 3] = boxes[:, 3] + sx_hi + cy_hi + 3 * OUTWARD
-    out[:, 4], out[:, 5] = normalize_angle_intervals(
-        boxes[:, 4] + offset[2] - OUTWARD, boxes[:, 5] + offset[2] + OUTWARD
-    )
-    return out
-
-
-def boxes_to_base(boxes: NDArray[np.float64], mount: LaserMount) -> NDArray[np.float64]:
-    """Boxes of laser poses ``(K, 6)`` -> boxes of robot base poses (``laser (+) mount^-1``), outward."""
-    return compose_boxes(boxes, inverse(mount.pose))
 
 
 def odometry_step_bounds(
@@ -462,17 +417,15 @@ class IntervalLocalizer:
         s = self.settings
         details["box_count"] = int(len(boxes))
         if len(boxes) == 0:
-            details["boxes"] = np.zeros((0, 3, 2))
             details.update(hull_width_x=0.0, hull_width_y=0.0, hull_width_theta=0.0)
             return Estimate(stamp, np.full(3, np.nan), np.full((3, 3), np.nan), LocalizerStatus.LOST,
-                            np.zeros((0, 3)), np.zeros(0), details)
+                            np.zeros((0, 3)), np.zeros(0), boxes=np.zeros((0, 3, 2)), details=details)
         hull = boxes_hull(boxes)
         widths = hull[1::2] - hull[0::2]
         details.update(hull_width_x=float(widths[0]), hull_width_y=float(widths[1]),
                        hull_width_theta=float(widths[2]))
         volume = np.prod(boxes[:, 1::2] - boxes[:, 0::2], axis=1)
         order = np.lexsort((volume, -consistent))
-        details["boxes"] = boxes_to_base(boxes[order], self.mount).reshape(-1, 3, 2)
         centres = 0.5 * (boxes[order, 0::2] + boxes[order, 1::2])
         centres[:, 2] = wrap_angle(centres[:, 2])
         weights = consistent[order] / max(int(details.get("valid_beams", 1)), 1)
@@ -491,4 +444,5 @@ class IntervalLocalizer:
                 status = LocalizerStatus.LOCALIZED
             else:
                 status = LocalizerStatus.AMBIGUOUS
-        return Estimate(stamp, pose, covariance, status, centres, weights.astype(np.float64), details)
+        return Estimate(stamp, pose, covariance, status, centres, weights.astype(np.float64),
+                        boxes=boxes[order].reshape(-1, 3, 2), details=details)

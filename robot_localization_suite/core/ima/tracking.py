@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ImageError
 from ..filter.odometry_gate import OdometryGate
-from ..localizer import Estimate, LocalizerStatus
+from ..localizer import Estimate, LocalizerStatus, Place
 from ..se2 import angle_difference, compose, relative, wrap_angle
 from .images import to_grey
 from .places import PanoramaBank, PlaceMatch
@@ -366,14 +366,13 @@ class ImaTopoLocalizer:
             status=status,
             candidates=candidates,
             candidate_weights=weights,
+            place=Place(self.names[node], self.node_xy[node].copy(), self.node_xy),
+            heading_corrected=bool(details.pop("corrected")),
             details={
                 "place": self.names[node],
                 "place_index": node,
-                "place_xy": self.node_xy[node].copy(),
-                "node_xy": self.node_xy,
-                "heading_corrected": details.pop("corrected"),
                 "hypotheses": int(len(candidates)),
-                "matches": place.match.copy(),
+                "best_match": float(np.max(place.match)) if len(place.match) else float("nan"),
                 **details,
             },
         )

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -155,7 +155,7 @@ class IRLocalizer:
             return self._initialise(scan, reason="lost")
         estimate = self._tracking_estimate(scan.stamp, self._predicted_particles(), {"phase": "tracking", "updated": False})
         if self._fix_pose is not None:
-            estimate.pose = self._predicted_poses(self._fix_pose[None, :])[0]
+            estimate = replace(estimate, pose=self._predicted_poses(self._fix_pose[None, :])[0])
         return estimate
 
     # -- GlobalFixer ----------------------------------------------------------------------------
@@ -337,7 +337,7 @@ class IRLocalizer:
         return self._start_from_fix(estimate, reason)
 
     def _start_from_fix(self, estimate: Estimate, reason: str) -> Estimate:
-        estimate.details["initialized_because"] = reason
+        estimate = replace(estimate, details={**estimate.details, "initialized_because": reason})
         count = self.settings.particle_count
         candidates = estimate.candidates
         # Drawn from the ranked list with probability 1 / rank (the ranking is the evidence: the first
@@ -376,7 +376,8 @@ class IRLocalizer:
             max_shift=s.refine_max_shift,
             max_turn=s.refine_max_turn,
         )
-        estimate.details["global_check"] = {"tracked_score": float(tracked[0]), "fix_score": fix.details["best_score"]}
+        estimate = replace(estimate, details={**estimate.details, "global_check_tracked_score": float(tracked[0]),
+                                              "global_check_fix_score": fix.details["best_score"]})
         far = float(np.hypot(*(fix.pose[:2] - estimate.pose[:2]))) > max(s.nms_distance, 0.5)
         if far and fix.details["best_score"] > float(tracked[0]) + s.global_check_margin:
             return self._start_from_fix(fix, "better global fix")
@@ -449,14 +450,15 @@ class IRLocalizer:
             weights = np.ones(len(moved))
         weights /= weights.sum()
         # The estimate comes from the weighted particles (the best-fitting cluster), then they are resampled.
+        # Pose of the best-scoring particle before resampling, for diagnostics.
+        best_particle = moved[int(np.argmax(scores))].tolist()
         estimate = self._tracking_estimate(
-            scan.stamp, moved, {"phase": "tracking", "updated": True, "best_endpoint_score": best}, weights
+            scan.stamp, moved,
+            {"phase": "tracking", "updated": True, "best_endpoint_score": best, "best_particle": best_particle}, weights,
         )
         chosen = low_variance_resample(weights, s.particle_count, self._rng)
         self.particles = moved[chosen]
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
-        # Pose of the best-scoring particle before resampling, for diagnostics.
-        estimate.details["best_particle"] = moved[int(np.argmax(scores))].tolist()
         self._updates_since_check += 1
         if s.global_check_updates and self._updates_since_check >= s.global_check_updates:
             return self._global_check(scan, estimate)

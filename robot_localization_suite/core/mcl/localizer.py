@@ -20,7 +20,7 @@ Notes (choices, departures, status, measured figures): docs/mcl.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -346,7 +346,8 @@ class MonteCarloLocalizer:
         if self._updates_since_resample >= s.resample_interval and (degenerate or self._injection_fraction() > 0.0):
             self._updates_since_resample = 0
             next_count, injected, bins = self._resample(weights, beams)
-            estimate.details.update(particles_next=next_count, injected=injected, kld_bins=bins)
+            estimate = replace(estimate, details={**estimate.details, "particles_next": next_count,
+                                                  "injected": injected, "kld_bins": bins})
         self.counters.updates += 1
         self.last_estimate = estimate
         return estimate

@@ -447,7 +447,7 @@ class PilLocalizer:
             details["best_score"] = math.inf
             cov = np.diag([1e6, 1e6, math.pi**2])
             pose = self._tracked_pose.copy() if self._tracked_pose is not None else np.zeros(3)
-            return Estimate(scan.stamp, pose, cov, LocalizerStatus.LOST, np.zeros((0, 3)), np.zeros(0), details)
+            return Estimate(scan.stamp, pose, cov, LocalizerStatus.LOST, np.zeros((0, 3)), np.zeros(0), details=details)
         best = search.poses[0]
         best_score = search.best_score
         separation = np.hypot(*(search.poses[:, :2] - best[:2]).T)

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ...core import metrics
 from ...core.grid_map import GridMap
+from ...core.localizer import Estimate, LocalizerStatus
 from .isolation import rss_mb
 from .reference import IMAGE_TOPIC, ODOM_TOPIC, SCAN_TOPIC, BagReference
 from .specs import LocalizerSpec
@@ -103,25 +104,23 @@ def log_sink(prefix: str) -> Callable[[str, str], None]:
     return sink
 
 
-def _details_checks(record: RunRecord, details: dict[str, Any], base_truth: NDArray[np.float64],
-                    estimate_pose: NDArray[np.float64]) -> None:
-    """Localizer-specific checks of one output against the (base) truth at its stamp."""
+def _method_checks(record: RunRecord, estimate: Estimate, base_truth: NDArray[np.float64]) -> None:
+    """Checks of one output's method-specific fields (boxes, place, heading correction) against the (base) truth."""
     if not np.all(np.isfinite(base_truth)):
         return
-    if "boxes" in details:
-        boxes = np.asarray(details["boxes"], dtype=np.float64)
+    if estimate.boxes is not None:
         if record.containment is None:
             record.containment, record.containment_stamps, record.containment_lost = [], [], []
-        record.containment.append(metrics.boxes_contain(boxes, base_truth))
-        record.containment_stamps.append(float(details.get("stamp", np.nan)))
-        record.containment_lost.append(bool(details.get("lost", False)))
-    if "place_xy" in details and "node_xy" in details:
+        record.containment.append(metrics.boxes_contain(estimate.boxes, base_truth))
+        record.containment_stamps.append(float(estimate.stamp))
+        record.containment_lost.append(estimate.status is LocalizerStatus.LOST)
+    if estimate.place is not None:
         record.place_correct = record.place_correct if record.place_correct is not None else []
-        record.place_correct.append(metrics.nearest_node_is_place(details["place_xy"], details["node_xy"], base_truth))
-    if details.get("heading_corrected") is not None:
+        record.place_correct.append(metrics.nearest_node_is_place(estimate.place.xy, estimate.place.node_xy, base_truth))
+    if estimate.heading_corrected is not None:
         record.corrected_heading_error_deg = record.corrected_heading_error_deg or []
-        if bool(details["heading_corrected"]):
-            _, dtheta = metrics.pose_errors(estimate_pose, base_truth)
+        if estimate.heading_corrected:
+            _, dtheta = metrics.pose_errors(estimate.pose, base_truth)
             record.corrected_heading_error_deg.append(float(np.rad2deg(dtheta[0])))
 
 
@@ -191,10 +190,10 @@ def replay_localizer(
         first[: len(ranked)] = ranked
         candidates.append(first)
         record.statuses.append(estimate.status.value)
-        if estimate.details and truth is not None:
+        has_checks = estimate.boxes is not None or estimate.place is not None or estimate.heading_corrected is not None
+        if has_checks and truth is not None:
             base_truth = metrics.interpolate_poses(truth, [estimate.stamp], breaks=reference.kidnap_indices)[0]
-            checked = {**estimate.details, "stamp": estimate.stamp, "lost": estimate.status.value == "LOST"}
-            _details_checks(record, checked, base_truth, pose)
+            _method_checks(record, estimate, base_truth)
 
     def on_odom(msg: Any) -> None:
         try:
