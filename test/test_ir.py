@@ -20,17 +20,15 @@ import scipy.sparse as sp
 from robot_localization_suite.core.errors import CacheError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ir.index import (
-    NO_RETURN,
     FanModel,
     HitIndex,
     IndexSettings,
     IRIndex,
     candidate_positions,
     cast_fans,
-    extract_runs,
-    pattern_terms,
 )
 from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
+from robot_localization_suite.core.ir.patterns import NO_RETURN, extract_runs, pattern_terms
 from robot_localization_suite.core.ir.query import LiveScan, step2_poses
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import recall_at_k
@@ -103,8 +101,14 @@ def world() -> GridMap:
 @pytest.fixture(scope="module")
 def localizer(world: GridMap) -> IRLocalizer:
     ir = IRLocalizer(settings(), world)
-    ir._index_for(scan_at(world, np.array([2.0, 1.5, 0.0])))
+    ir.prepare(scan_at(world, np.array([2.0, 1.5, 0.0])))
     return ir
+
+
+def _share_index(target: IRLocalizer, source: IRLocalizer) -> None:
+    """Give ``target`` the map and the (costly) index of ``source`` without building them again."""
+    target.grid_map, target._occupied_near = source.grid_map, source._occupied_near
+    target.fixer.grid_map, target.fixer.index, target.fixer.field = source.grid_map, source.index, source.fixer.field
 
 
 def close(a: np.ndarray, b: np.ndarray, distance: float = 0.5, angle: float = math.radians(25.0)) -> bool:
@@ -204,7 +208,7 @@ def test_a_noise_free_scan_at_a_grid_pose_comes_back_top_1(world: GridMap, local
 
 def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: GridMap, localizer: IRLocalizer) -> None:
     paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
-    paper.grid_map, paper.index = world, localizer.index
+    _share_index(paper, localizer)
     index = localizer.index
     assert index is not None
     for x, y, heading in GRID_POSES:
@@ -413,13 +417,12 @@ def test_a_scan_with_no_pattern_returns_no_candidates_and_says_why(world: GridMa
     flat = Scan(1.0, angles, np.full(SCAN_BEAMS, 2.0), 0.05, SCAN_RANGE)
     assert "no pattern" in localizer.global_fix(flat).details["fallback"]
     strict = IRLocalizer(settings(fallback_positions=0), None)
-    strict.grid_map, strict.index = world, localizer.index
+    _share_index(strict, localizer)
     refused = strict.global_fix(flat)
     assert len(refused.candidates) == 0 and "no delimiting no-return" in refused.details["reason"]
     # the tracker refuses the same scan with the reason (the adapter logs it and skips the scan) ...
     fresh = IRLocalizer(settings(), None)
-    fresh.grid_map, fresh.index = world, localizer.index
-    fresh._field, fresh._occupied_near = localizer._field, localizer._occupied_near
+    _share_index(fresh, localizer)
     with pytest.raises(ScanError, match="every reading is a no-return"):
         fresh.on_scan(nothing)
     assert not fresh.initialized
@@ -488,8 +491,7 @@ def _run(localizer: Localizer, world: GridMap, truth: np.ndarray, rng: np.random
 
 def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLocalizer) -> None:
     tracker = IRLocalizer(settings(seed=1), None)
-    tracker.grid_map, tracker.index = world, localizer.index
-    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    _share_index(tracker, localizer)
     assert isinstance(tracker, Localizer) and isinstance(tracker, GlobalFixer)
     # from room 1 through its door into the corridor, east, a U-turn, back west
     truth = _drive(world, [(2.5, 7.5), (2.5, 2.0), (9.0, 2.0), (9.0, 2.4), (6.0, 2.3)])
@@ -514,8 +516,7 @@ def test_a_kidnapped_tracker_reinitialises_by_itself(
 ) -> None:
     # 0: only the LOST rule (end-point scores collapse); 2: also the periodic global check
     tracker = IRLocalizer(settings(seed=6, lost_update_count=2, global_check_updates=global_check_updates), None)
-    tracker.grid_map, tracker.index = world, localizer.index
-    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    _share_index(tracker, localizer)
     before = _drive(world, [(1.0, 1.5), (8.0, 1.6)])
     after = _drive(world, [(5.5, 4.0), (5.5, 8.0), (2.5, 8.0)])
     # odometry sees one continuous drive; the scans jump from the corridor to room 2
@@ -531,8 +532,7 @@ def test_a_kidnapped_tracker_reinitialises_by_itself(
 
 def test_reinitialize_and_initial_pose(world: GridMap, localizer: IRLocalizer) -> None:
     tracker = IRLocalizer(settings(seed=2), None)
-    tracker.grid_map, tracker.index = world, localizer.index
-    tracker._field, tracker._occupied_near = localizer._field, localizer._occupied_near
+    _share_index(tracker, localizer)
     pose = np.array([6.0, 5.0, 0.5])
     tracker.set_initial_pose(pose, np.diag([0.1**2, 0.1**2, 0.05**2]))
     assert tracker.initialized and tracker.particles is not None

@@ -1,30 +1,17 @@
-"""Information-retrieval global initialisation feeding a small particle filter.
+"""The IR localizer: the global fix of :mod:`.global_fix` feeding a small particle filter (seed 001, IV-C, IV-D).
 
-O. Aycard and C. Brouard, "A new tool to initialize global localization for a
-mobile robot" (seed 001). The scan the robot should perceive is precomputed
-at every position of a grid over the map (section IV-A-2, :mod:`.index`); a
-live scan is turned into hits, an inverted index finds the positions (x, y)
-whose patterns share the most hits (step 1, IV-B-3), and the poses
-(x, y, theta) of those positions are ranked by the idf-weighted hits they
-share (step 2, IV-B-4, :mod:`.query`). 100 particles drawn from the ranked
-poses are tracked with the odometry motion model and an end-point sensor
-model (sections IV-C, IV-D). This module holds the settings and
-:class:`IRLocalizer` (``global_fix`` and tracking).
-
-Beyond the paper, each a switch: range jumps also end a pattern, refinement
-and duplicate suppression of the ranked poses, a coarse fallback for scans
-with no delimited pattern, and a periodic global check while tracking.
-
+O. Aycard and C. Brouard, "A new tool to initialize global localization for a mobile robot".
+``particle_count`` particles drawn from the ranked poses of a global fix are tracked with the
+odometry motion model and an end-point sensor model, resampled at every update; the localizer
+initialises again by itself when the particles stop matching the map. Beyond the paper (a
+switch): a periodic global check that restarts the tracker from a clearly better fix.
 Notes (the interpretation of the paper, status, measured figures): docs/ir.md.
 """
 
 from __future__ import annotations
 
 import logging
-import math
-import time
 from dataclasses import asdict, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,27 +20,18 @@ from numpy.typing import NDArray
 from ..errors import ScanError
 from ..filter.odometry_gate import OdometryGate
 from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
-from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..motion import OdometryMotionModel
 from ..scan import Scan
 from ..se2 import compose, relative, wrap_angle
+from .global_fix import COVARIANCE_FLOOR, IRGlobalFixer
 from .index import FanModel, IndexSettings, IRIndex
-from .query import (
-    live_pattern_terms,
-    resample_scan,
-    step1_positions,
-    step2_poses,
-    suppress_duplicates,
-)
 from .settings import IRSettings
 
 __all__ = ["IRSettings", "IRLocalizer", "IRIndex", "FanModel", "IndexSettings"]
 
 _LOG = logging.getLogger(__name__)
-# Added to reported covariances so that a collapsed cloud still gives a positive-definite one.
-_COVARIANCE_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
 
 
 class IRLocalizer:
@@ -67,9 +45,7 @@ class IRLocalizer:
     def __init__(self, settings: IRSettings | None = None, grid_map: GridMap | None = None) -> None:
         self.settings = settings or IRSettings()
         self.grid_map: GridMap | None = None
-        self.index: IRIndex | None = None
-        self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
-        self._field: DistanceField | None = None
+        self.fixer = IRGlobalFixer(self.settings)
         self._occupied_near: NDArray[np.bool_] | None = None
         self._rng = np.random.default_rng(self.settings.seed)
         self._motion = OdometryMotionModel(
@@ -103,17 +79,13 @@ class IRLocalizer:
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
-        self.index = None
-        self._field = DistanceField(grid_map)
+        self.fixer.set_map(grid_map)
         tolerance = self.settings.endpoint_tolerance
         if tolerance > 0.0:
             self._occupied_near = grid_map.distance_field() <= tolerance + 1e-6
         else:
             self._occupied_near = grid_map.occupied_mask
         self._reset_tracking()
-        s = self.settings
-        if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
-            self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
         """Record odometry; non-finite or older poses are ignored."""
@@ -160,170 +132,18 @@ class IRLocalizer:
 
     # -- GlobalFixer ----------------------------------------------------------------------------
     def global_fix(self, scan: Scan) -> Estimate:
-        """Ranked candidate poses of the laser from this scan alone (best first).
+        """Ranked candidate poses of the laser from this scan alone, best first (:class:`~.global_fix.IRGlobalFixer`)."""
+        return self.fixer.global_fix(scan)
 
-        Returns an estimate with no candidates and ``details["reason"]`` when the
-        scan holds no usable pattern.
+    def prepare(self, scan: Scan) -> None:
+        """Build (or load) the index for this scan's geometry now, not inside the first update."""
+        self.fixer.prepare(scan)
 
-        Raises:
-            ScanError: no map yet, or a scanner geometry the precomputation cannot use.
-        """
-        if self.grid_map is None:
-            raise ScanError("IR global fix needs a map first")
-        s = self.settings
-        index = self._index_for(scan)
-        timings: dict[str, float] = {}
-        start = time.perf_counter()
-        live = resample_scan(scan, index.fan)
-        details: dict[str, Any] = {"phase": "initialization", "positions": 0, "live_patterns": 0}
-        if not live.valid.any():
-            return self._no_candidates(scan.stamp, "no valid reading in the scan", details)
-        terms, anchors = live_pattern_terms(live, index)
-        details["live_patterns"] = len(terms)
-        if not live.hit_mask.any():
-            return self._no_candidates(scan.stamp, "no pattern: every reading is a no-return", details)
-        fallback = None
-        if terms:
-            position_ids, _ = step1_positions(
-                index,
-                terms,
-                patterns_per_live_pattern=s.patterns_per_live_pattern,
-                positions=s.step1_positions,
-                soft_weight=s.soft_bin_weight,
-                weight_by_length=s.weight_patterns_by_length,
-            )
-            if len(position_ids) == 0:
-                fallback = "no stored pattern shares a hit with the scan's patterns"
-        elif len(anchors):
-            fallback = "no pattern: the scan is one run of hits with no delimiting no-return or range jump"
-        else:
-            fallback = (
-                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.settings.pattern_max_range} m"
-            )
-        if fallback is not None:
-            if s.fallback_positions <= 0:
-                return self._no_candidates(scan.stamp, fallback, details)
-            # Step 1 cannot place the scan: step 2 over a coarse lattice of all positions instead.
-            details["fallback"] = fallback
-            position_ids = self._coarse_positions(index)
-        timings["step1_ms"] = (time.perf_counter() - start) * 1e3
-        details["positions"] = len(position_ids)
-        details["step1_xy"] = index.positions[position_ids]
-        mid = time.perf_counter()
-        poses, scores = step2_poses(
-            index,
-            live,
-            position_ids,
-            heading_count=s.heading_count,
-            range_bin=s.step2_range_bin,
-            tolerance_bins=s.step2_tolerance_bins,
-            use_idf=s.use_idf,
-            no_return_terms=s.no_return_terms,
-            idf_log=s.idf_log,
-        )
-        timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
-        if len(poses) == 0:
-            return self._no_candidates(scan.stamp, "step 2 found no pose sharing a hit with the scan", details)
-        mid = time.perf_counter()
-        poses, scores = self._rerank(live, poses, scores)
-        details["best_score"] = float(scores[0]) if len(scores) else 0.0
-        timings["refine_ms"] = (time.perf_counter() - mid) * 1e3
-        timings["total_ms"] = (time.perf_counter() - start) * 1e3
-        details.update(timings)
-        weights = np.maximum(scores, 0.0)
-        weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(scores), 1.0 / len(scores))
-        return Estimate(
-            stamp=scan.stamp,
-            pose=poses[0].copy(),
-            covariance=_covariance(poses, weights),
-            status=LocalizerStatus.AMBIGUOUS if len(poses) > 1 else LocalizerStatus.LOCALIZED,
-            candidates=poses,
-            candidate_weights=weights,
-            details=details,
-        )
-
-    # -- internals: index -----------------------------------------------------------------------
-    def _index_for(self, scan: Scan) -> IRIndex:
-        if self.index is None:
-            if scan.beam_count < 2:
-                raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
-            increment = float(scan.angles[1] - scan.angles[0])
-            self._build_index(self.settings.fan_model(increment, scan.range_max))
-        assert self.index is not None
-        return self.index
-
-    def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
-        """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
-        if self._coarse is None or self._coarse[0] is not index:
-            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.settings.grid_resolution).astype(np.int64)
-            stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
-            chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
-            self._coarse = (index, chosen)
-        return self._coarse[1]
-
-    def _build_index(self, fan: FanModel) -> None:
-        assert self.grid_map is not None
-        s = self.settings
-        self.index = IRIndex.load_or_build(
-            self.grid_map,
-            fan,
-            s.index_settings(),
-            cache_dir=Path(s.cache_dir).expanduser() if s.cache_dir else None,
-            use_cache=s.use_cache,
-            progress=s.progress,
-            cache_budget_mb=s.cache_budget_mb,
-        )
-        _LOG.info("IR index ready: %s", self.index.describe())
-
-    def _rerank(
-        self, live: Any, poses: NDArray[np.float64], scores: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Refinement and duplicate suppression of the step-2 ranking (beyond the paper; docs/ir.md)."""
-        s = self.settings
-        count = min(s.refine_candidates, len(poses))
-        if count > 0 and self._field is not None and live.hit_mask.any():
-            hits = live.hit_mask
-            refined, likelihood = refine_poses(
-                self._field,
-                poses[:count],
-                live.angles[hits],
-                live.ranges[hits],
-                iterations=s.refine_iterations,
-                sigma=s.refine_sigma,
-                max_shift=s.refine_max_shift,
-                max_turn=s.refine_max_turn,
-            )
-            order = np.argsort(-likelihood, kind="stable")
-            head, head_scores = refined[order], likelihood[order]
-            keep = suppress_duplicates(head, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
-            head, head_scores = head[keep], head_scores[keep]
-            if len(head) < s.max_candidates and count < len(poses):
-                # The unrefined rest follows, ranked by step 2, scores below every refined one.
-                tail = poses[count:]
-                tail_keep = suppress_duplicates(
-                    tail, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates - len(head)
-                )
-                tail_scores = scores[count:][tail_keep]
-                tail_scores = tail_scores / max(float(scores.max()), 1e-12) * float(head_scores.min(initial=1.0)) * 0.5
-                head = np.vstack([head, tail[tail_keep]])
-                head_scores = np.concatenate([head_scores, tail_scores])
-            return head, head_scores
-        keep = suppress_duplicates(poses, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
-        return poses[keep], scores[keep]
+    @property
+    def index(self) -> IRIndex | None:
+        return self.fixer.index
 
     # -- internals: tracking --------------------------------------------------------------------
-    def _no_candidates(self, stamp: float, reason: str, details: dict[str, Any]) -> Estimate:
-        details = {**details, "reason": reason}
-        return Estimate(
-            stamp=stamp,
-            pose=np.full(3, np.nan),
-            covariance=np.full((3, 3), np.nan),
-            status=LocalizerStatus.LOST,
-            candidates=np.zeros((0, 3)),
-            candidate_weights=np.zeros(0),
-            details=details,
-        )
-
     def _initialise(self, scan: Scan, *, reason: str) -> Estimate:
         """Global fix and particles from it.
 
@@ -362,20 +182,9 @@ class IRLocalizer:
         s = self.settings
         self._updates_since_check = 0
         fix = self.global_fix(scan)
-        if len(fix.candidates) == 0 or self._field is None or self.index is None:
+        tracked = self.fixer.refined_scores(scan, estimate.pose[None, :]) if len(fix.candidates) else None
+        if tracked is None:
             return estimate
-        live = resample_scan(scan, self.index.fan)
-        hits = live.hit_mask
-        _, tracked = refine_poses(
-            self._field,
-            estimate.pose[None, :],
-            live.angles[hits],
-            live.ranges[hits],
-            iterations=s.refine_iterations,
-            sigma=s.refine_sigma,
-            max_shift=s.refine_max_shift,
-            max_turn=s.refine_max_turn,
-        )
         estimate = replace(estimate, details={**estimate.details, "global_check_tracked_score": float(tracked[0]),
                                               "global_check_fix_score": fix.details["best_score"]})
         far = float(np.hypot(*(fix.pose[:2] - estimate.pose[:2]))) > max(s.nms_distance, 0.5)
@@ -478,7 +287,7 @@ class IRLocalizer:
         _, covariance = weighted_pose_statistics(particles, weights)
         # The cloud's xy spread [m]: root of the summed position variances (RMS distance to the centroid).
         spread = float(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0)))
-        covariance = covariance + _COVARIANCE_FLOOR
+        covariance = covariance + COVARIANCE_FLOOR
         details = {**details, "particles": len(particles), "spread_m": spread, "low_score_updates": self._low_score_updates}
         if np.isfinite(self._best_score):
             details.setdefault("best_endpoint_score", self._best_score)
@@ -497,9 +306,7 @@ class IRLocalizer:
 
     def describe(self) -> dict[str, Any]:
         """Settings and index sizes, for reports."""
-        return {"settings": asdict(self.settings), "index": self.index.describe() if self.index else None}
+        index = self.fixer.index
+        return {"settings": asdict(self.settings), "index": index.describe() if index else None}
 
 
-def _covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Weighted covariance of (x, y, theta) (heading wrapped around the mean), with a small floor."""
-    return weighted_pose_statistics(poses, weights)[1] + _COVARIANCE_FLOOR

@@ -17,7 +17,9 @@ from numpy.typing import NDArray
 
 from ..scan import Scan
 from ..se2 import wrap_angle
-from .index import MAX_HIT_CODE, NO_RETURN, FanModel, IRIndex, extract_runs, pattern_terms
+from .index import FanModel, IRIndex
+from .patterns import NO_RETURN, extract_runs, pattern_terms
+from .settings import MAX_HIT_CODE
 
 __all__ = [
     "LiveScan",

@@ -1,0 +1,246 @@
+"""The IR global fix of Aycard & Brouard (seed 001, section IV-B): ranked poses from one scan, no prior.
+
+The scan the robot should perceive is precomputed at every position of a grid over the map
+(IV-A-2, :mod:`.index`); a live scan's patterns find the positions whose patterns share the most
+hits (step 1, IV-B-3) and the poses of those positions are ranked by the idf-weighted hits they
+share (step 2, IV-B-4, :mod:`.query`). Beyond the paper, each a switch: refinement and duplicate
+suppression of the ranked poses, and a coarse fallback for scans with no delimited pattern.
+Notes: docs/ir.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import ScanError
+from ..filter.particles import weighted_pose_statistics
+from ..filter.refinement import DistanceField, refine_poses
+from ..grid_map import GridMap
+from ..localizer import Estimate, LocalizerStatus
+from ..scan import Scan
+from .index import FanModel, IRIndex
+from .query import live_pattern_terms, resample_scan, step1_positions, step2_poses, suppress_duplicates
+from .settings import IRSettings
+
+__all__ = ["IRGlobalFixer", "COVARIANCE_FLOOR"]
+
+_LOG = logging.getLogger(__name__)
+# Added to reported covariances so that a collapsed cloud still gives a positive-definite one.
+COVARIANCE_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
+
+
+class IRGlobalFixer:
+    """The index over a map and the global fix from it (a :class:`~..localizer.GlobalFixer`).
+
+    Args:
+        settings: the method's settings (precomputation, query and refinement).
+    """
+
+    def __init__(self, settings: IRSettings) -> None:
+        self.settings = settings
+        self.grid_map: GridMap | None = None
+        self.index: IRIndex | None = None
+        self.field: DistanceField | None = None
+        self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
+
+    def set_map(self, grid_map: GridMap) -> None:
+        """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
+        self.grid_map = grid_map
+        self.index = None
+        self.field = DistanceField(grid_map)
+        s = self.settings
+        if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
+            self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
+
+    def prepare(self, scan: Scan) -> IRIndex:
+        """The index for this scan's geometry, built (or loaded from the cache) on first use.
+
+        Raises:
+            ScanError: a scan of fewer than two beams, or a geometry the precomputation cannot use.
+        """
+        if self.index is None:
+            if scan.beam_count < 2:
+                raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
+            increment = float(scan.angles[1] - scan.angles[0])
+            self._build_index(self.settings.fan_model(increment, scan.range_max))
+        assert self.index is not None
+        return self.index
+
+    def refined_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """Mean end-point likelihood of ``poses`` after refinement, scored as the ranking scores its poses."""
+        if self.field is None or self.index is None:
+            return None
+        s = self.settings
+        live = resample_scan(scan, self.index.fan)
+        hits = live.hit_mask
+        _, scores = refine_poses(
+            self.field, poses, live.angles[hits], live.ranges[hits], iterations=s.refine_iterations,
+            sigma=s.refine_sigma, max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
+        )
+        return scores
+
+    def global_fix(self, scan: Scan) -> Estimate:
+        """Ranked candidate poses of the laser from this scan alone (best first).
+
+        Returns an estimate with no candidates and ``details["reason"]`` when the
+        scan holds no usable pattern.
+
+        Raises:
+            ScanError: no map yet, or a scanner geometry the precomputation cannot use.
+        """
+        if self.grid_map is None:
+            raise ScanError("IR global fix needs a map first")
+        s = self.settings
+        index = self.prepare(scan)
+        timings: dict[str, float] = {}
+        start = time.perf_counter()
+        live = resample_scan(scan, index.fan)
+        details: dict[str, Any] = {"phase": "initialization", "positions": 0, "live_patterns": 0}
+        if not live.valid.any():
+            return self._no_candidates(scan.stamp, "no valid reading in the scan", details)
+        terms, anchors = live_pattern_terms(live, index)
+        details["live_patterns"] = len(terms)
+        if not live.hit_mask.any():
+            return self._no_candidates(scan.stamp, "no pattern: every reading is a no-return", details)
+        fallback = None
+        if terms:
+            position_ids, _ = step1_positions(
+                index,
+                terms,
+                patterns_per_live_pattern=s.patterns_per_live_pattern,
+                positions=s.step1_positions,
+                soft_weight=s.soft_bin_weight,
+                weight_by_length=s.weight_patterns_by_length,
+            )
+            if len(position_ids) == 0:
+                fallback = "no stored pattern shares a hit with the scan's patterns"
+        elif len(anchors):
+            fallback = "no pattern: the scan is one run of hits with no delimiting no-return or range jump"
+        else:
+            fallback = (
+                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.settings.pattern_max_range} m"
+            )
+        if fallback is not None:
+            if s.fallback_positions <= 0:
+                return self._no_candidates(scan.stamp, fallback, details)
+            # Step 1 cannot place the scan: step 2 over a coarse lattice of all positions instead.
+            details["fallback"] = fallback
+            position_ids = self._coarse_positions(index)
+        timings["step1_ms"] = (time.perf_counter() - start) * 1e3
+        details["positions"] = len(position_ids)
+        details["step1_xy"] = index.positions[position_ids]
+        mid = time.perf_counter()
+        poses, scores = step2_poses(
+            index,
+            live,
+            position_ids,
+            heading_count=s.heading_count,
+            range_bin=s.step2_range_bin,
+            tolerance_bins=s.step2_tolerance_bins,
+            use_idf=s.use_idf,
+            no_return_terms=s.no_return_terms,
+            idf_log=s.idf_log,
+        )
+        timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
+        if len(poses) == 0:
+            return self._no_candidates(scan.stamp, "step 2 found no pose sharing a hit with the scan", details)
+        mid = time.perf_counter()
+        poses, scores = self._rerank(live, poses, scores)
+        details["best_score"] = float(scores[0]) if len(scores) else 0.0
+        timings["refine_ms"] = (time.perf_counter() - mid) * 1e3
+        timings["total_ms"] = (time.perf_counter() - start) * 1e3
+        details.update(timings)
+        weights = np.maximum(scores, 0.0)
+        weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(scores), 1.0 / len(scores))
+        return Estimate(
+            stamp=scan.stamp,
+            pose=poses[0].copy(),
+            covariance=_covariance(poses, weights),
+            status=LocalizerStatus.AMBIGUOUS if len(poses) > 1 else LocalizerStatus.LOCALIZED,
+            candidates=poses,
+            candidate_weights=weights,
+            details=details,
+        )
+
+    def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
+        """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
+        if self._coarse is None or self._coarse[0] is not index:
+            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.settings.grid_resolution).astype(np.int64)
+            stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
+            chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
+            self._coarse = (index, chosen)
+        return self._coarse[1]
+
+    def _build_index(self, fan: FanModel) -> None:
+        assert self.grid_map is not None
+        s = self.settings
+        self.index = IRIndex.load_or_build(
+            self.grid_map,
+            fan,
+            s.index_settings(),
+            cache_dir=Path(s.cache_dir).expanduser() if s.cache_dir else None,
+            use_cache=s.use_cache,
+            progress=s.progress,
+            cache_budget_mb=s.cache_budget_mb,
+        )
+        _LOG.info("IR index ready: %s", self.index.describe())
+
+    def _rerank(
+        self, live: Any, poses: NDArray[np.float64], scores: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Refinement and duplicate suppression of the step-2 ranking (beyond the paper; docs/ir.md)."""
+        s = self.settings
+        count = min(s.refine_candidates, len(poses))
+        if count > 0 and self.field is not None and live.hit_mask.any():
+            hits = live.hit_mask
+            refined, likelihood = refine_poses(
+                self.field,
+                poses[:count],
+                live.angles[hits],
+                live.ranges[hits],
+                iterations=s.refine_iterations,
+                sigma=s.refine_sigma,
+                max_shift=s.refine_max_shift,
+                max_turn=s.refine_max_turn,
+            )
+            order = np.argsort(-likelihood, kind="stable")
+            head, head_scores = refined[order], likelihood[order]
+            keep = suppress_duplicates(head, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
+            head, head_scores = head[keep], head_scores[keep]
+            if len(head) < s.max_candidates and count < len(poses):
+                # The unrefined rest follows, ranked by step 2, scores below every refined one.
+                tail = poses[count:]
+                tail_keep = suppress_duplicates(
+                    tail, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates - len(head)
+                )
+                tail_scores = scores[count:][tail_keep]
+                tail_scores = tail_scores / max(float(scores.max()), 1e-12) * float(head_scores.min(initial=1.0)) * 0.5
+                head = np.vstack([head, tail[tail_keep]])
+                head_scores = np.concatenate([head_scores, tail_scores])
+            return head, head_scores
+        keep = suppress_duplicates(poses, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
+        return poses[keep], scores[keep]
+
+    def _no_candidates(self, stamp: float, reason: str, details: dict[str, Any]) -> Estimate:
+        details = {**details, "reason": reason}
+        return Estimate(
+            stamp=stamp,
+            pose=np.full(3, np.nan),
+            covariance=np.full((3, 3), np.nan),
+            status=LocalizerStatus.LOST,
+            candidates=np.zeros((0, 3)),
+            candidate_weights=np.zeros(0),
+            details=details,
+        )
+
+
+def _covariance(poses: NDArray[np.float64], weights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weighted covariance of (x, y, theta) (heading wrapped around the mean), with a small floor."""
+    return weighted_pose_statistics(poses, weights)[1] + COVARIANCE_FLOOR
