@@ -288,7 +288,7 @@ class PreparedLog:
     def angles(self, index: int) -> NDArray[np.float64]:
         """Beam angles [rad] of scan ``index``."""
         angle_min, increment = beam_geometry(self.scans[index].ranges.size)
-        return angle_min + increment * np.arange(self.scans[index].ranges.size)
+        return angle_min + increment * np.arange(self.scans[index].ranges.size, dtype=np.float64)
 
 
 def _report_warning_to_stderr(message: str) -> None:

@@ -152,7 +152,7 @@ def measure(grid_map: GridMap, *, trials: int, beams: int, range_error: float, o
         estimate = localizer.global_fix(scan)
         results["global_s"].append(time.perf_counter() - start)
         results["global_boxes"].append(estimate.details["box_count"])
-        results["global_contains"].append(boxes_contain(estimate.boxes, pose))
+        results["global_contains"].append(estimate.boxes is not None and boxes_contain(estimate.boxes, pose))
 
         offset = rng.uniform(-0.5, 0.5, 3) * np.array([0.5, 0.5, math.radians(10.0)])
         centre = pose + offset

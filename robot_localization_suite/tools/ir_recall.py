@@ -35,7 +35,8 @@ from numpy.typing import NDArray
 
 from ..core import metrics
 from ..core.grid_map import GridMap, load_map_yaml
-from ..core.ir.localizer import IRLocalizer, IRSettings
+from ..core.ir.global_fix import IRGlobalFixer
+from ..core.ir.settings import IRSettings
 from ..core.scan import LaserMount, Scan
 from ..core.se2 import compose, inverse
 
@@ -88,19 +89,13 @@ def evaluate(
         "paper, idf": replace(settings, refine_candidates=0, nms_distance=0.0, nms_angle=0.0),
         "paper, no idf": replace(settings, refine_candidates=0, nms_distance=0.0, nms_angle=0.0, use_idf=False),
     }
-    localizers = {}
     start = time.perf_counter()
-    main_localizer = IRLocalizer(settings, grid_map)
-    index = main_localizer._index_for(scans[0])
+    main_fixer = IRGlobalFixer(settings)
+    main_fixer.set_map(grid_map)
+    index = main_fixer.prepare(scans[0])
     build_s = time.perf_counter() - start
-    for name, variant in variants.items():
-        localizer = main_localizer if variant is settings else IRLocalizer(replace(variant, progress=False), None)
-        if localizer is not main_localizer:
-            localizer.grid_map = grid_map
-            localizer._field = main_localizer._field
-            localizer._occupied_near = main_localizer._occupied_near
-            localizer.index = index
-        localizers[name] = localizer
+    localizers = {name: main_fixer if variant is settings else main_fixer.variant(replace(variant, progress=False))
+                  for name, variant in variants.items()}
     hits: dict[str, list[dict[int, bool]]] = {"step 1 (x, y)": [], **{name: [] for name in variants}}
     query_ms: list[float] = []
     step_ms: list[float] = []

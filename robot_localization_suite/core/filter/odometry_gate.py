@@ -154,7 +154,7 @@ class OdometryGate:
         """
         if self.measure is MotionMeasure.PATH:
             return self._path[0], self._path[1]
-        current = self.latest if pose is None else pose
+        current = self.latest if pose is None else np.asarray(pose, dtype=np.float64)
         if self.reference is None or current is None:
             return math.nan, math.nan
         translation = math.hypot(current[0] - self.reference[0], current[1] - self.reference[1])

@@ -250,17 +250,18 @@ class IntervalLocalizer:
             return None
         s = self.settings
         steps = self.odometry.take_steps()
-        tracking = self.boxes is not None
-        if tracking and not self.odometry.due():
-            self.boxes = self.predict(self.boxes, steps)
+        previous = self.boxes
+        tracking = previous is not None
+        if previous is not None and not self.odometry.due():
+            self.boxes = self.predict(previous, steps)
             return None
         self.odometry.mark_updated(self.odometry.latest)
         self._updates += 1
         angles, range_lo, range_hi = beam_intervals(scan, range_error=s.range_error, max_beams=s.max_beams)
         details: dict[str, Any] = {"valid_beams": int(angles.size), "restarted": False}
 
-        if tracking:
-            boxes = self.boxes
+        if previous is not None:
+            boxes = previous
             if len(boxes) > 1 and angles.size >= s.max_outliers + 1:
                 # Leaves of the last iteration grouped into hulls, before odometry widens them.
                 boxes = merge_boxes(boxes, np.array([s.merge_width_xy, s.merge_width_xy, s.merge_width_theta]))
@@ -346,8 +347,8 @@ class IntervalLocalizer:
                 dy_lo, dy_hi = interval_mul(trans[0], trans[1], s_lo, s_hi)
             else:
                 # Any direction of travel, at most the largest possible translation.
-                dx_lo = dy_lo = -trans[1]
-                dx_hi = dy_hi = trans[1]
+                dx_lo = dy_lo = np.full(len(boxes), -trans[1])
+                dx_hi = dy_hi = np.full(len(boxes), trans[1])
             boxes[:, 0] += dx_lo - OUTWARD
             boxes[:, 1] += dx_hi + OUTWARD
             boxes[:, 2] += dy_lo - OUTWARD

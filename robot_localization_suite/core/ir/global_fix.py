@@ -59,6 +59,18 @@ class IRGlobalFixer:
         if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
             self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
 
+    def variant(self, settings: IRSettings) -> IRGlobalFixer:
+        """A fixer with other query settings sharing this one's map, distance field and index.
+
+        Raises:
+            ValueError: ``settings`` would build another index (a precomputation setting differs).
+        """
+        if settings.index_settings() != self.settings.index_settings():
+            raise ValueError("an IR variant must share the index settings of the fixer it comes from")
+        other = IRGlobalFixer(settings)
+        other.grid_map, other.field, other.index = self.grid_map, self.field, self.index
+        return other
+
     def prepare(self, scan: Scan) -> IRIndex:
         """The index for this scan's geometry, built (or loaded from the cache) on first use.
 

@@ -310,10 +310,10 @@ def step2_poses(
         scores = matches[0] @ weights
     else:
         scores = np.concatenate([holds(block) @ weights for block in blocks])
-    poses = np.empty((len(position_ids), heading_count, 3))
-    poses[..., :2] = index.positions[position_ids][:, None, :]
-    poses[..., 2] = wrap_angle(headings)[None, :]
-    poses = poses.reshape(-1, 3)
+    grid: NDArray[np.float64] = np.empty((len(position_ids), heading_count, 3))
+    grid[..., :2] = index.positions[position_ids][:, None, :]
+    grid[..., 2] = np.asarray(wrap_angle(headings))[None, :]
+    poses = grid.reshape(-1, 3)
     order = np.argsort(-scores, kind="stable")
     return poses[order], scores[order]
 

@@ -125,8 +125,8 @@ class MonteCarloLocalizer:
         self._map_fingerprint: str | None = None
         self._sensor: LikelihoodFieldModel | BeamModel | None = None
         self._free_mask: NDArray[np.bool_] | None = None
-        self.particles = np.zeros((0, 3))
-        self.log_weights = np.zeros(0)
+        self.particles: NDArray[np.float64] = np.zeros((0, 3))
+        self.log_weights: NDArray[np.float64] = np.zeros(0)
         # Odometry poses for interpolation at scan stamps; the reference is the odometry at the last update.
         self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_filter_state()
@@ -219,7 +219,7 @@ class MonteCarloLocalizer:
                 moved = gate.moved(odom)
         if not (moved or gate.forced):
             return None
-        if moved:
+        if moved and gate.reference is not None and odom is not None:
             self.particles = self.motion_model.sample(self.particles, gate.reference, odom, self.rng)
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
@@ -242,7 +242,8 @@ class MonteCarloLocalizer:
         if init.pose is None:
             self.particles = self.grid_map.sample_free_poses(count, self.rng)
         else:
-            cov = 0.5 * (init.covariance + init.covariance.T)
+            covariance = init.covariance if init.covariance is not None else np.zeros((3, 3))
+            cov = 0.5 * (covariance + covariance.T)
             floor = np.array([_MIN_INITIAL_STD_XY**2, _MIN_INITIAL_STD_XY**2, _MIN_INITIAL_STD_YAW**2])
             cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
             values, vectors = np.linalg.eigh(cov)

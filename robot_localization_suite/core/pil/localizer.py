@@ -365,7 +365,7 @@ class PilLocalizer:
             self._sheet_features, self._live_features(profile), self._alphas, self._sigmas, settings.rank_term_cap
         )
         if centre is None:
-            area = np.ones(passes.size, dtype=bool)
+            area: NDArray[np.bool_] = np.ones(passes.size, dtype=bool)
         else:
             offset = np.abs(self.learning.tile_centres - centre[None, :2])
             area = (offset[:, 0] <= 0.5 * settings.window_size) & (offset[:, 1] <= 0.5 * settings.window_size)
@@ -374,7 +374,7 @@ class PilLocalizer:
         wanted = min(settings.min_candidates, int(area.sum()))
         if chosen.size < wanted:
             chosen = np.concatenate([chosen, _best_ranked(np.flatnonzero(area & ~passes), rank, wanted - chosen.size)])
-        sentinels = np.zeros(0, dtype=np.int64)
+        sentinels: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
         if centre is not None and settings.global_candidates > 0:
             sentinels = _best_ranked(np.flatnonzero(~area), rank, settings.global_candidates)
         tiles = np.concatenate([chosen, sentinels])

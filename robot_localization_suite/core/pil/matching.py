@@ -229,7 +229,7 @@ def feature_distances(
     scaled = np.abs(features - live[None, :, None].astype(np.float32)) * (alphas / sigmas)[None, :, None].astype(
         np.float32
     )
-    passes = (scaled < 1.0).all(axis=1).any(axis=0)
+    passes: NDArray[np.bool_] = np.asarray((scaled < 1.0).all(axis=1).any(axis=0))
     squared = scaled * scaled
     if np.isfinite(term_cap):
         np.minimum(squared, np.float32(term_cap), out=squared)
