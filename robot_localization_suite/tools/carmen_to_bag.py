@@ -3,60 +3,12 @@
     carmen_to_bag LOG OUT_DIR [--map-out MAP_YAML] [--alpha1 A] ... [--seed S] [--resolution 0.05]
     carmen_to_bag LOG OUT_DIR --blocks K [--name NAME]     (cross-validation split, tools/carmen_cv.py)
 
-Input: a (gzipped) corrected CARMEN log (Radish datasets). Only ``FLASER``
-lines are used; their format (CARMEN ``logtools``, old-style front laser) is
-
-    FLASER n r1 .. rn  x y theta  odom_x odom_y odom_theta  ipc_timestamp host logger_timestamp
-
-where ``x y theta`` is the corrected laser pose (the ground truth of these
-logs) and ``odom_*`` repeats it in corrected logs. Every other line (ODOM,
-PARAM, NEFF, RLASER, comments) is ignored.
-
-Choices, written down because the logs leave them open:
-
-* Beam geometry as CARMEN guesses it for a SICK LMS
-  (``carmen_laser_guess_angle_increment``): the first beam at -90 degrees,
-  1 degree apart for 180/181 beams, 0.5 degree for 360/361, otherwise
-  180 degrees spread over ``n - 1`` gaps.
-* No-returns: the scanner writes an error code at its maximum (81.83 m or
-  81.91 m in the Intel and FR101 logs, 32.759..32.767 m in the Orebro log).
-  The log's maximum range is the largest reading in the log; every reading at
-  or above ``max - no_return_tolerance`` (default 0.1 m) is a no-return,
-  published as ``+inf``, and ``range_max`` is that threshold (REP 117).
-  ``--max-range`` overrides the detection.
-* Time: the FLASER ``ipc_timestamp``; if it is not usable, the FLASER
-  ``logger_timestamp``, then the time of the last ODOM line before each scan,
-  then one scan every ``--period`` seconds. Every problem (zero, negative,
-  whole-second or non-increasing stamps) and every fallback is warned on
-  stderr, one line per kind. A stamp that does not increase is moved 1 ms
-  after the previous one (the Intel log steps back four times, by up to
-  0.86 s); the Orebro log has no usable time at all (tools/carmen_log.py,
-  docs/benchmark.md).
-* Odometry: the logs carry none that is usable, so ``/odom`` is the corrected
-  trajectory seen through Thrun's odometry model (*Probabilistic Robotics*
-  table 5.6, the shared ``OdometryMotionModel.sample``): each step between two
-  corrected poses is perturbed with alpha1..alpha4 and accumulated from
-  ``(0, 0, 0)`` in the ``odom`` frame. The defaults (alpha scales a variance,
-  as in nav2_amcl) give about 2 % of translation (``sqrt(4e-4)``) and
-  2 degrees per radian of rotation (``sqrt(1.2e-3)``), the figures DESIGN.md
-  measured nav2_amcl with on the Intel log. Seeded, so a conversion repeats.
-* Map: 5 cm log-odds occupancy grid (Thrun et al. table 9.1) built from the
-  scans at the corrected poses: every cell a beam crosses (integer Bresenham
-  from the laser cell to the endpoint cell, endpoint excluded) gets
-  ``log(0.4/0.6)``, the endpoint cell of a hit ``log(0.7/0.3)``; log-odds are
-  clamped to [-2, 3.5] so that people who walked by are erased. A cell is
-  occupied if its log-odds are positive, free if negative, unknown if never
-  seen (or exactly balanced). Hits beyond ``--map-max-range`` (default 40 m)
-  and no-returns do not add endpoints; a far hit still clears free space up to
-  ``--map-max-range`` while no-returns clear nothing (they include glass and
-  dazzle as well as open space).
-
-Output topics: ``/map`` (nav_msgs/OccupancyGrid, once, before everything),
-then per scan ``/odom`` (nav_msgs/Odometry, frame ``odom``, child
-``base_link``), ``/ground_truth`` (nav_msgs/Odometry in ``map``) and ``/scan``
-(sensor_msgs/LaserScan, frame ``laser``), all with the scan's stamp. The laser
-sits at the robot's origin (the logs' laser offset is 0), so the ground truth
-is the corrected laser pose.
+Input: a (gzipped) corrected CARMEN log (Radish datasets); only ``FLASER`` lines are used
+(``tools/carmen_log.py`` parses them and chooses the stamps). Output: ``/map`` once, then per scan
+``/odom`` (the corrected trajectory through the seeded odometry noise model), ``/ground_truth``
+(the corrected pose) and ``/scan``. The map is a 5 cm log-odds occupancy grid built from the scans
+at the corrected poses. Every choice the logs leave open (beam geometry, no-returns, time,
+odometry noise, map building): docs/real_logs.md.
 """
 
 from __future__ import annotations

@@ -2,31 +2,10 @@
 
     python -m robot_localization_suite.tools.make_maps [--out config/maps] [--resolution 0.05]
 
-Writes nav2 map_server trinary maps (``<name>.yaml`` + ``<name>.pgm``) with
-:meth:`GridMap.save`. Coordinates below are world metres, origin at the lower
-left corner of each map; walls are 15 cm thick (corridor: 30 cm).
-
-* ``office`` (20 m x 20 m): an office floor with a corridor across the middle,
-  five rooms, doors and furniture, deliberately *not* symmetric, except for
-  two identical offices side by side (``twin_room``: same size, door and
-  furniture, 5 m apart) that make a locally ambiguous place.
-* ``floor`` (30 m x 11 m): the building floor of the PIL paper's kidnapping
-  simulations (002, section 3: "a 30m x 11m floor with an unbalanced
-  structure", long corridors). The figure is not in the text, so: a corridor
-  2 m wide along the whole floor, an open hall at the west end of the north
-  side, closed rooms elsewhere, and a corridor stub going north near the
-  east end. The stretch x = 12..20 of the main corridor is locally symmetric
-  under a half turn about (16, 5.5) (doors at x = 11..11.9 south and
-  20.1..21 north), where the paper's robot mistook its heading by pi.
-* ``corridor`` (26 m x 4 m): the symmetric corridor of the IAL paper
-  (004, section 4.3, a 26 m x 4 m x 360 degree initial box, "symmetrical
-  environment"). Door niches and pillars are placed symmetrically under a
-  half turn about the centre (13, 2), so that every pose has a twin
-  ``(26 - x, 4 - y, theta + pi)`` that sees the same scan. The paper's
-  ambiguity "is solved as soon as the robot moves", so the environment cannot
-  be perfectly symmetric: one cabinet in the door niche at x = 2.5..3.5 breaks
-  the symmetry; it is seen only from the west end (with an 8 m laser, from
-  x < ~10.5).
+Writes nav2 map_server trinary maps (``<name>.yaml`` + ``<name>.pgm``) with :meth:`GridMap.save`:
+``office`` (20 m x 20 m, with two identical offices side by side), ``floor`` (30 m x 11 m, the PIL
+paper's kidnapping floor, 002 section 3) and ``corridor`` (26 m x 4 m, the IAL paper's symmetric
+corridor, 004 section 4.3, broken by one cabinet). Their layout and why: docs/simulator.md, "Maps".
 """
 
 from __future__ import annotations
