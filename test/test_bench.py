@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -296,6 +297,48 @@ def test_with_tracking_and_global_fixes_append_their_tables(kidnap_bag, tmp_path
     assert bench.main(argv) == 0
     assert runs == [("replay", "global", "."), ("replay", "tracking", "tracking"), ("fixes", None, "global_fixes")]
     assert (tmp_path / "summary.md").read_text() == "# replay global\n\n## replay tracking\n\n## fixes None\n"
+
+
+PREPARE_SLEEP_S = 0.3
+
+
+class PreparingEcho(EchoLocalizer):
+    """The echo with a slow ``prepare(scan)``, as a method with scanner-dependent precomputation would have."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.prepared_with = None
+
+    def prepare(self, scan):
+        assert self.grid_map is not None, "prepare comes after set_map"
+        self.prepared_with = (scan.stamp, scan.beam_count)
+        time.sleep(PREPARE_SLEEP_S)
+
+    def on_scan(self, scan):
+        assert self.prepared_with is not None, "prepare comes before the first scan"
+        return super().on_scan(scan)
+
+
+def test_prepare_gets_the_first_scan_and_counts_in_map_setup(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    built = []
+
+    def factory():
+        built.append(PreparingEcho(truth, constant_offset))
+        return built[-1]
+
+    spec = bench.LocalizerSpec("prep", factory)
+    fields = bench.run_benchmark([path], [spec], tmp_path, isolate=False, plots=False)["room_kidnap"]["prep"]
+    assert built[0].prepared_with == (pytest.approx(truth.stamps[0]), 181)  # the bag's first scan
+    assert fields["map_setup_s"] >= PREPARE_SLEEP_S
+    assert fields["correct_rate"] == 1.0
+    fixes = bench.run_global_fixes([path], [spec], tmp_path / "fixes", isolate=False)["room_kidnap"]["prep"]
+    assert built[1].prepared_with == (pytest.approx(truth.stamps[0]), 181)
+    assert fixes["map_setup_s"] >= PREPARE_SLEEP_S
+    # Without prepare, set_map alone: well under the sleep.
+    plain = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path / "plain", isolate=False,
+                                plots=False)["room_kidnap"]["echo"]
+    assert plain["map_setup_s"] < PREPARE_SLEEP_S
 
 
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):
