@@ -35,6 +35,7 @@ class GlobalFixRecord:
     bag: str
     localizer: str
     supported: bool
+    stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # the fixes' scan stamps [s]
     estimates: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     truths: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     fix_ms: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
@@ -81,6 +82,7 @@ def global_fix_localizer(
     estimates: list[NDArray[np.float64]] = []
     truths: list[NDArray[np.float64]] = []
     fix_ms: list[float] = []
+    stamps: list[float] = []
     deadline = time.monotonic() + max_seconds if max_seconds else np.inf
     peak = rss_mb() if sample_rss else 0.0
     for index, item in enumerate(read_bag(reference.path, [SCAN_TOPIC])):
@@ -103,6 +105,7 @@ def global_fix_localizer(
             LOG.debug("%s fix failed: %s", prefix, exc)
         fix_ms.append((time.perf_counter() - started) * 1e3)
         truths.append(true_pose)
+        stamps.append(scan.stamp)
         if estimate is None:
             record.failures += 1
             estimates.append(np.full(3, np.nan))
@@ -118,6 +121,7 @@ def global_fix_localizer(
     record.estimates = np.array(estimates).reshape(-1, 3)
     record.truths = np.array(truths).reshape(-1, 3)
     record.fix_ms = np.array(fix_ms)
+    record.stamps = np.array(stamps, dtype=np.float64)
     record.peak_rss_mb = round(peak, 1) if sample_rss else None
     return record
 
