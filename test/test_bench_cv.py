@@ -86,6 +86,7 @@ def test_pooled_rates_are_the_blocks_outputs_together_and_same_map_uses_the_whol
     assert "| corridor | uneven | 3 | 48 / 48 | 0.833 / 0.833 |" in table
     assert "| corridor_cv2of3 | uneven | 20 / 20 | 0.6 / 0.6 |" in table
     assert "| corridor | picky | – |" in table and "skipped: not on corridors" in table
+    assert "| corridor_cv1of3 | picky |" not in table  # skipped on every block: the pooled row says it once
 
 
 def test_global_fixes_pool_every_fix(corridor_split, tmp_path):

@@ -164,7 +164,7 @@ def _left_out_reason(entry: Mapping[str, Any]) -> str:
     return "no outputs to score"
 
 
-def _pool(logs: Sequence[CvLog], specs: Sequence[LocalizerSpec], mode: str, runs: Mapping[str, Any],
+def _pool(logs: Sequence[CvLog], specs: Sequence[LocalizerSpec], runs: Mapping[str, Any],
           scores: Mapping[tuple[str, str, str], OutputScores]) -> dict[str, dict[str, Any]]:
     """Per log and localizer: both maps' pooled fields over the blocks where both runs scored."""
     pooled: dict[str, dict[str, Any]] = {}
@@ -271,6 +271,6 @@ def run_cv(
                     if entry:
                         entries[spec.name] = entry
     for mode in modes:
-        summary[mode] = {"pooled": _pool(logs, specs, mode, runs[mode], scores[mode]), "blocks": runs[mode]}
+        summary[mode] = {"pooled": _pool(logs, specs, runs[mode], scores[mode]), "blocks": runs[mode]}
     write_cv_summary(out, summary)
     return summary

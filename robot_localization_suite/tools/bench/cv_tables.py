@@ -105,10 +105,14 @@ def _pooled_table(pooled: Mapping[str, Mapping[str, Any]], columns: tuple[tuple[
     return lines
 
 
-def _block_table(blocks: Mapping[str, Mapping[str, Any]], columns: tuple[tuple[str, str], ...]) -> list[str]:
+def _block_table(blocks: Mapping[str, Mapping[str, Any]], columns: tuple[tuple[str, str], ...],
+                 skipped_everywhere: set[str]) -> list[str]:
+    """A row per block and localizer, leaving out localizers the pooled table shows skipped on every block."""
     lines = _header(["block", "localizer"], columns)
     for block, localizers in blocks.items():
         for name, entry in localizers.items():
+            if "skipped" in entry and name in skipped_everywhere:
+                continue
             if "skipped" in entry:
                 lines.append(_row([block, name, *("" for _ in columns), f"skipped: {entry['skipped']}"]))
                 continue
@@ -123,10 +127,16 @@ def cv_tables(summary: Mapping[str, Any], *, level: int = 2) -> str:
     for mode in summary.get("modes", []):
         fixes = mode == "global_fixes"
         title = _TITLES[mode].format(every=summary.get("every"))
+        pooled = summary[mode]["pooled"]
+        skipped_everywhere = {name for localizers in pooled.values() for name, entry in localizers.items()
+                              if "skipped" in entry}
+        skipped_everywhere -= {name for localizers in pooled.values() for name, entry in localizers.items()
+                               if "skipped" not in entry}
         text += [f"{heading} {title}: pooled per log", "",
-                 *_pooled_table(summary[mode]["pooled"], _POOLED_FIXES if fixes else _POOLED_REPLAY), "",
+                 *_pooled_table(pooled, _POOLED_FIXES if fixes else _POOLED_REPLAY), "",
                  f"{heading} {title}: per block", "",
-                 *_block_table(summary[mode]["blocks"], _BLOCK_FIXES if fixes else _BLOCK_REPLAY), ""]
+                 *_block_table(summary[mode]["blocks"], _BLOCK_FIXES if fixes else _BLOCK_REPLAY, skipped_everywhere),
+                 ""]
     return "\n".join(text)
 
 
