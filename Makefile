@@ -4,6 +4,7 @@
 #   make demo DEMO_ARGS="--speed 2"       options of rls_demo (see .venv/bin/rls_demo --help)
 #   make test PYTEST_ARGS="-k raycast"    options of pytest
 #   make bench BENCH_ARGS="--skip ial_localizer:fr101"   options of rls_bench (see .venv/bin/rls_bench --help)
+#   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -12,8 +13,17 @@ DEMO_ARGS ?=
 PYTEST_ARGS ?=
 BENCH_MAX_SECONDS ?= 300
 BENCH_ARGS ?=
+# Real logs for the cross-validation runs; their 5-block splits are made once, when missing.
+CARMEN_DIR ?= ../shared/data/carmen
+CV_SPLITS ?= results/cv_splits
+CV_LOGS := intel fr101 orebro
+CV_LOG_FILE_intel := intel-corrected.log.gz
+CV_LOG_FILE_fr101 := freiburg-101-corrected.log.gz
+CV_LOG_FILE_orebro := orebro-corrected.log.gz
+CV_INDEXES := $(foreach log,$(CV_LOGS),$(CV_SPLITS)/$(log)_cv.yaml)
+HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 
-.PHONY: setup demo test bench lint clean
+.PHONY: setup demo test bench bench-cv lint clean
 
 # Reinstalled whenever the package metadata changes.
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
@@ -33,9 +43,28 @@ test: $(STAMP)
 
 # Every localizer over every bag in bags/, in global then tracking mode, plus single-scan
 # global fixes; each run stops after BENCH_MAX_SECONDS of wall time (reported as truncated).
-bench: $(STAMP)
+# With the real logs at hand, then the same over the 5-block splits of intel, fr101 and orebro
+# (each block on its honest map and on the whole-log map) into results/cv/, its tables
+# appended to results/summary.md.
+bench: $(STAMP) $(if $(HAVE_CARMEN),$(CV_INDEXES))
+	@$(if $(HAVE_CARMEN),true,echo "bench: $(CARMEN_DIR) is absent: skipping the cross-validation runs (honest maps)")
 	$(PY) -m robot_localization_suite.tools.bench --all --with-tracking --with-global-fixes --out results \
-		--max-seconds $(BENCH_MAX_SECONDS) $(BENCH_ARGS)
+		--max-seconds $(BENCH_MAX_SECONDS) $(if $(HAVE_CARMEN),--cv $(CV_INDEXES)) $(BENCH_ARGS)
+
+# Only the cross-validation runs: results/cv/summary.md.
+ifeq ($(HAVE_CARMEN),)
+bench-cv:
+	$(error bench-cv: $(CARMEN_DIR) is absent, no real logs to cut into blocks)
+else
+bench-cv: $(STAMP) $(CV_INDEXES)
+	$(PY) -m robot_localization_suite.tools.bench --cv $(CV_INDEXES) --with-tracking --with-global-fixes \
+		--out results --max-seconds $(BENCH_MAX_SECONDS) $(BENCH_ARGS)
+endif
+
+# A log's split (bags, maps, index); remade only when its index is missing (delete it to remake).
+$(CV_SPLITS)/%_cv.yaml: | $(STAMP)
+	$(PY) -m robot_localization_suite.tools.carmen_to_bag $(CARMEN_DIR)/$(CV_LOG_FILE_$*) $(CV_SPLITS) \
+		--blocks 5 --name $* --overwrite
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robot_localization_suite test

@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,13 +16,14 @@ from echo_localizer import EchoLocalizer
 from tqdm import tqdm
 
 from robot_localization_suite.core import metrics
-from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.localizer import Place
 from robot_localization_suite.core.progress import progress_disabled
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.bag import BagWriter
 from robot_localization_suite.tools import bench
+from robot_localization_suite.tools import scan_coverage as bench_scan_coverage
 
 SCAN_PERIOD = 0.1  # [s]
 KIDNAP_AT = 10.0  # [s] after the first scan
@@ -318,6 +320,97 @@ def test_with_tracking_and_global_fixes_append_their_tables(kidnap_bag, tmp_path
     assert bench.main(argv) == 0
     assert runs == [("replay", "global", "."), ("replay", "tracking", "tracking"), ("fixes", None, "global_fixes")]
     assert (tmp_path / "summary.md").read_text() == "# replay global\n\n## replay tracking\n\n## fixes None\n"
+
+
+def off_from_5_to_8_s(stamp: float) -> tuple[float, float, float]:
+    """Echo error: 1 m off from 5 s to 8 s after the first scan, exact otherwise."""
+    return (1.0, 0.0, 0.0) if 5.0 - 1e-9 <= stamp - 100.0 < 8.0 - 1e-9 else (0.0, 0.0, 0.0)
+
+
+def test_map_coverage_fields_on_the_map_the_scans_came_from(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    fields = bench.run_benchmark([path], [echo_spec(truth, lost_for_two_seconds)], tmp_path, isolate=False,
+                                 plots=False)["room_kidnap"]["echo"]
+    # The scans are cast on the bag's own map: every end point is on a wall, every output covered.
+    assert fields["map_coverage_median"] == 1.0
+    assert fields["outputs_covered"] == 201
+    assert fields["correct_rate_covered"] == fields["correct_rate"]
+    assert "| room_kidnap | echo | 201 | 0.9 | 0.9 | 0.9 | 1 |" in (tmp_path / "summary.md").read_text()
+
+
+def test_map_coverage_splits_rates_on_a_map_without_the_far_wall(kidnap_bag, tmp_path, monkeypatch):
+    path, truth = kidnap_bag
+    half = room_map()
+    half.data[:, 230:] = -1  # beyond x = 11.5 m unknown: the far wall, which the robot sees more as it nears it
+    half_yaml = half.save(tmp_path / "half.yaml")
+    calls = []
+    original = bench_scan_coverage.bag_scan_coverage
+    monkeypatch.setattr(bench_scan_coverage, "bag_scan_coverage",
+                        lambda *args, **kwargs: calls.append(args[0]) or original(*args, **kwargs))
+    specs = [echo_spec(truth, off_from_5_to_8_s), echo_spec(truth, off_from_5_to_8_s, name="echo2")]
+    fields = bench.run_benchmark([path], specs, tmp_path, map_yaml=half_yaml, isolate=False,
+                                 plots=False)["room_kidnap"]["echo"]
+    assert len(calls) == 1  # once per bag and map, not per localizer
+    # The same figures straight from the helpers: each output's scan coverage, the correct outputs.
+    coverage = bench_scan_coverage.bag_scan_coverage(path, load_map_yaml(half_yaml))
+    stamps = 100.0 + np.arange(201) * SCAN_PERIOD
+    correct = ~((stamps - 100.0 >= 5.0 - 1e-9) & (stamps - 100.0 < 8.0 - 1e-9))
+    expected = metrics.coverage_rates(correct, coverage.at(stamps))
+    assert 0 < expected["outputs_covered"] < 201  # the first ~100 outputs covered, the later ones not
+    assert expected["correct_rate_covered"] < 1.0 == expected["correct_rate_uncovered"]
+    assert fields["outputs_covered"] == expected["outputs_covered"]
+    assert fields["correct_rate_covered"] == expected["correct_rate_covered"]
+    assert fields["correct_rate"] == pytest.approx(171 / 201, abs=1e-4)
+    assert fields["map_coverage_median"] == pytest.approx(np.median(coverage.coverage), abs=1e-4)
+    fixes = bench.run_global_fixes([path], specs[:1], tmp_path / "fixes", map_yaml=half_yaml, every=5,
+                                   isolate=False)["room_kidnap"]["echo"]
+    every_5th = np.arange(0, 201, 5)
+    expected = metrics.coverage_rates(correct[every_5th], coverage.at(stamps[every_5th]))
+    assert fixes["fixes_covered"] == expected["outputs_covered"]
+    assert fixes["global_correct_rate_covered"] == expected["correct_rate_covered"]
+    assert fixes["global_correct_rate"] == expected["correct_rate"]
+
+
+PREPARE_SLEEP_S = 0.3
+
+
+class PreparingEcho(EchoLocalizer):
+    """The echo with a slow ``prepare(scan)``, as a method with scanner-dependent precomputation would have."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.prepared_with = None
+
+    def prepare(self, scan):
+        assert self.grid_map is not None, "prepare comes after set_map"
+        self.prepared_with = (scan.stamp, scan.beam_count)
+        time.sleep(PREPARE_SLEEP_S)
+
+    def on_scan(self, scan):
+        assert self.prepared_with is not None, "prepare comes before the first scan"
+        return super().on_scan(scan)
+
+
+def test_prepare_gets_the_first_scan_and_counts_in_map_setup(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    built = []
+
+    def factory():
+        built.append(PreparingEcho(truth, constant_offset))
+        return built[-1]
+
+    spec = bench.LocalizerSpec("prep", factory)
+    fields = bench.run_benchmark([path], [spec], tmp_path, isolate=False, plots=False)["room_kidnap"]["prep"]
+    assert built[0].prepared_with == (pytest.approx(truth.stamps[0]), 181)  # the bag's first scan
+    assert fields["map_setup_s"] >= PREPARE_SLEEP_S
+    assert fields["correct_rate"] == 1.0
+    fixes = bench.run_global_fixes([path], [spec], tmp_path / "fixes", isolate=False)["room_kidnap"]["prep"]
+    assert built[1].prepared_with == (pytest.approx(truth.stamps[0]), 181)
+    assert fixes["map_setup_s"] >= PREPARE_SLEEP_S
+    # Without prepare, set_map alone: well under the sleep.
+    plain = bench.run_benchmark([path], [echo_spec(truth, constant_offset)], tmp_path / "plain", isolate=False,
+                                plots=False)["room_kidnap"]["echo"]
+    assert plain["map_setup_s"] < PREPARE_SLEEP_S
 
 
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):

@@ -25,6 +25,7 @@ __all__ = [
     "Localizer",
     "CameraLocalizer",
     "GlobalFixer",
+    "Preparer",
 ]
 
 
@@ -83,7 +84,11 @@ class Estimate:
 
 @runtime_checkable
 class Localizer(Protocol):
-    """A laser localizer. Every call returns quickly and never raises on bad readings."""
+    """A laser localizer. Every call returns quickly and never raises on bad readings.
+
+    Optional: ``prepare(scan)`` (:class:`Preparer`), precomputation that needs the scanner's
+    geometry as well as the map; callers that have a scan before the first update call it.
+    """
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map from now on (may trigger precomputation)."""
@@ -123,3 +128,19 @@ class GlobalFixer(Protocol):
 
     def global_fix(self, scan: Scan) -> Estimate:
         """Candidates ranked best first; ``pose`` is the best one."""
+
+
+@runtime_checkable
+class Preparer(Protocol):
+    """Optional part of :class:`Localizer`: precompute what the first scan would, from its geometry.
+
+    A method whose precomputation depends on the scanner (beam count, angles, range limits)
+    as well as on the map may otherwise do it lazily inside the first ``on_scan``. Given a
+    scan of that scanner, ``prepare`` does it at once; only the scan's geometry counts, not
+    its readings or stamp. Callers with a scan in hand (``rls_bench``: the bag's first scan,
+    right after ``set_map``, timed as ``map_setup_s``) call it when a localizer has it; a
+    localizer must work the same when it is never called, and after a later ``set_map``.
+    """
+
+    def prepare(self, scan: Scan) -> None:
+        """Precompute what the first scan of this geometry would (after ``set_map``)."""

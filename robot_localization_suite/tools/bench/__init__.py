@@ -3,14 +3,16 @@
 Each bag is replayed through each localizer with the deterministic replay and the
 adapter the nodes use, one child process per run, and scored against ``/ground_truth``
 (``core/metrics.py``). :class:`LocalizerSpec` is the injection point for other
-localizers; :func:`run_benchmark` and :func:`run_global_fixes` take specs. Importing
-this package loads no rclpy and no message package: the modules that read bags import
-them when a bag is read. How it works and what each field means: ``docs/benchmark.md``.
+localizers; :func:`run_benchmark`, :func:`run_global_fixes` and :func:`run_cv` (honest
+maps: cross-validation splits) take specs. Importing this package loads no rclpy and no
+message package: the modules that read bags import them when a bag is read. How it works
+and what each field means: ``docs/benchmark.md``.
 """
 
 from __future__ import annotations
 
 from .cli import default_bags_dir, discover_bags, main
+from .cv import find_split_indexes, read_split, run_cv
 from .global_fixes import GlobalFixRecord, global_fix_localizer
 from .reference import BagReference, load_reference, map_candidates, resolve_map
 from .replay import RunRecord, replay_localizer
@@ -34,6 +36,9 @@ __all__ = [
     "summarize_global_fixes",
     "run_benchmark",
     "run_global_fixes",
+    "run_cv",
+    "find_split_indexes",
+    "read_split",
     "summary_table",
     "write_summary",
     "discover_bags",

@@ -4,6 +4,7 @@
               [--set name.param=value ...] [--max-seconds S] [--no-plots]
     rls_bench --global-fixes [--every N] BAG... [--localizers NAMES] --out DIR
     rls_bench --all [--with-global-fixes] [--out results]
+    rls_bench --cv SPLIT... [--localizers NAMES] [--mode M] [--with-tracking] [--with-global-fixes] --out DIR
 
 Options: ``rls_bench --help``; what a run does: ``docs/benchmark.md``.
 """
@@ -21,6 +22,8 @@ import yaml
 
 from ... import registry
 from ...core.errors import BagError, LocalizationSuiteError
+from .cv import cv_modes, find_split_indexes, run_cv
+from .cv_tables import append_cv_section, cv_tables
 from .run import run_benchmark, run_global_fixes
 from .specs import LocalizerSpec, registry_spec
 from .tables import append_section, summary_table
@@ -91,6 +94,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--with-tracking", action="store_true",
                         help="after global-mode replays, also replay in tracking mode into OUT/tracking and append "
                         "its table to OUT/summary.md")
+    parser.add_argument("--cv", nargs="+", type=Path, default=None, metavar="SPLIT",
+                        help="cross-validation: every laser localizer over every block of these splits (an index "
+                        "<name>_cv.yaml of carmen_to_bag --blocks, or a directory of them), on the block's honest map "
+                        "and on the whole-log map, in the modes the other options ask for; into OUT/cv (appended to "
+                        "OUT/summary.md when bags run too)")
     parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
     parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
@@ -108,8 +116,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         bags = list(args.bags)
         if args.all:
             bags += [b for b in discover_bags(args.bags_dir or default_bags_dir()) if b not in bags]
-        if not bags:
-            raise ValueError("no bag given (pass BAG... or --all)")
+        cv_indexes = find_split_indexes(args.cv) if args.cv else []
+        if not bags and not cv_indexes:
+            raise ValueError("no bag given (pass BAG..., --all or --cv SPLIT)")
+        if cv_indexes and args.map is not None:
+            raise ValueError("--map does not apply to --cv: each block runs on its own map and the whole-log map")
         available = list(registry.PLUGINS)
         names = _split_names(args.localizers) or available
         unknown = [n for n in names if n not in available]
@@ -123,11 +134,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             if name in skips:
                 spec = LocalizerSpec(spec.name, spec.factory, spec.uses_camera, spec.mount, {**spec.skip, **skips[name]})
             specs.append(spec)
-        if args.global_fixes:
+        summary = None
+        if bags and args.global_fixes:
             summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
                                        isolate=not args.in_process, max_seconds=args.max_seconds,
                                        honour_skips=args.all, child_progress=args.verbose)
-        else:
+        elif bags:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
@@ -146,10 +158,27 @@ def main(argv: Sequence[str] | None = None) -> int:
                                            max_seconds=args.max_seconds, honour_skips=args.all,
                                            child_progress=args.verbose)
                 append_section(args.out, "global_fixes")
+        cv_summary = None
+        if cv_indexes:
+            if summary is not None:
+                print(summary_table(summary))
+            modes = cv_modes(args.mode, with_tracking=args.with_tracking, with_global_fixes=args.with_global_fixes,
+                             global_fixes_only=args.global_fixes)
+            cv_summary = run_cv(cv_indexes, specs, args.out / "cv", modes=modes, every=args.every,
+                                isolate=not args.in_process, max_seconds=args.max_seconds, plots=not args.no_plots,
+                                honour_skips=args.all or not args.localizers, progress=True,
+                                child_progress=args.verbose)
+            if bags:
+                append_cv_section(args.out)
     except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:
         print(f"rls_bench: error: {exc}", file=sys.stderr)
         return 1
-    print(summary_table(summary))
-    print(f"\nwritten: {args.out / 'summary.json'}, {args.out / 'summary.md'}")
+    if cv_summary is not None:
+        print(cv_tables(cv_summary))
+        print(f"written: {args.out / 'cv' / 'summary.json'}, {args.out / 'cv' / 'summary.md'}")
+    if summary is not None:
+        if cv_summary is None:
+            print(summary_table(summary))
+        print(f"\nwritten: {args.out / 'summary.json'}, {args.out / 'summary.md'}")
     return 0
 

@@ -18,6 +18,7 @@ from ...core import metrics
 from ...core.errors import LocalizationSuiteError
 from ...core.grid_map import GridMap
 from .isolation import rss_mb
+from .prepare import prepare_localizer, prepare_scan
 from .reference import SCAN_TOPIC, BagReference
 from .replay import log_sink
 from .specs import LocalizerSpec
@@ -34,6 +35,7 @@ class GlobalFixRecord:
     bag: str
     localizer: str
     supported: bool
+    stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # the fixes' scan stamps [s]
     estimates: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     truths: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     fix_ms: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
@@ -71,11 +73,16 @@ def global_fix_localizer(
     if grid_map is None:
         record.error = "no map"
         return record
+    first_scan = prepare_scan(core, reference)
     start = time.perf_counter()
     adapter.set_map(grid_map)
+    prepare_localizer(core, first_scan)
     record.map_setup_s = round(time.perf_counter() - start, 3)
     truth = reference.ground_truth
-    estimates, truths, fix_ms = [], [], []
+    estimates: list[NDArray[np.float64]] = []
+    truths: list[NDArray[np.float64]] = []
+    fix_ms: list[float] = []
+    stamps: list[float] = []
     deadline = time.monotonic() + max_seconds if max_seconds else np.inf
     peak = rss_mb() if sample_rss else 0.0
     for index, item in enumerate(read_bag(reference.path, [SCAN_TOPIC])):
@@ -98,14 +105,15 @@ def global_fix_localizer(
             LOG.debug("%s fix failed: %s", prefix, exc)
         fix_ms.append((time.perf_counter() - started) * 1e3)
         truths.append(true_pose)
+        stamps.append(scan.stamp)
         if estimate is None:
             record.failures += 1
             estimates.append(np.full(3, np.nan))
             record.recalls.append({k: False for k in metrics.RECALL_KS})
         else:
             pose = adapter.to_base(np.asarray(estimate.pose, dtype=np.float64))
-            candidates = np.asarray(estimate.candidates, dtype=np.float64).reshape(-1, 3)
-            candidates = adapter.to_base(candidates) if len(candidates) else pose[None, :]
+            ranked = np.asarray(estimate.candidates, dtype=np.float64).reshape(-1, 3)
+            candidates = adapter.to_base(ranked) if len(ranked) else pose[None, :]
             estimates.append(pose)
             record.recalls.append(metrics.recall_at_k(candidates, true_pose))
         if sample_rss:
@@ -113,6 +121,7 @@ def global_fix_localizer(
     record.estimates = np.array(estimates).reshape(-1, 3)
     record.truths = np.array(truths).reshape(-1, 3)
     record.fix_ms = np.array(fix_ms)
+    record.stamps = np.array(stamps, dtype=np.float64)
     record.peak_rss_mb = round(peak, 1) if sample_rss else None
     return record
 

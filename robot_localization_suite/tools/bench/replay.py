@@ -21,6 +21,7 @@ from ...core import metrics
 from ...core.grid_map import GridMap
 from ...core.localizer import Estimate, LocalizerStatus
 from .isolation import rss_mb
+from .prepare import prepare_localizer, prepare_scan
 from .reference import IMAGE_TOPIC, ODOM_TOPIC, SCAN_TOPIC, BagReference
 from .specs import LocalizerSpec
 
@@ -109,7 +110,7 @@ def _method_checks(record: RunRecord, estimate: Estimate, base_truth: NDArray[np
     if not np.all(np.isfinite(base_truth)):
         return
     if estimate.boxes is not None:
-        if record.containment is None:
+        if record.containment is None or record.containment_stamps is None or record.containment_lost is None:
             record.containment, record.containment_stamps, record.containment_lost = [], [], []
         record.containment.append(metrics.boxes_contain(estimate.boxes, base_truth))
         record.containment_stamps.append(float(estimate.stamp))
@@ -151,8 +152,10 @@ def replay_localizer(
     timed = _TimedLocalizer(spec.factory())
     adapter = LocalizerAdapter(timed, node_name=spec.name, log=sink, mount=spec.mount)
     if grid_map is not None and hasattr(timed, "set_map"):
+        first_scan = prepare_scan(timed, reference, uses_camera=spec.uses_camera)
         start = time.perf_counter()
         adapter.set_map(grid_map)
+        prepare_localizer(timed, first_scan)
         record.map_setup_s = round(time.perf_counter() - start, 3)
     truth = reference.ground_truth
     stamps: list[float] = []
@@ -219,7 +222,7 @@ def replay_localizer(
             record.truncated = True
             raise _StopReplay
 
-    handlers = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor}
+    handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor}
     try:
         replay(reference.path, handlers, on_message=on_message)
     except _StopReplay:

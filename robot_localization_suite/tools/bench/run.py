@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ...core.grid_map import GridMap
+from .coverage import CoverageCache, OutputScores, global_fix_scores, replay_scores, run_coverage_fields
 from .global_fixes import global_fix_localizer
 from .isolation import call_guarded
 from .reference import IMAGE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference, load_reference, map_candidates, resolve_map
@@ -24,7 +25,7 @@ from .specs import LocalizerSpec
 from .summary import summarize_global_fixes, summarize_run
 from .tables import one_line, write_summary
 
-__all__ = ["run_benchmark", "run_global_fixes"]
+__all__ = ["run_benchmark", "run_global_fixes", "replay_pair", "global_fix_pair"]
 
 LOG = logging.getLogger("rls_bench")
 
@@ -43,6 +44,87 @@ def _plan(
                 yield reference, spec, spec.skip_reason(reference.name)
             else:
                 yield reference, spec, None
+
+
+def replay_pair(
+    reference: BagReference,
+    spec: LocalizerSpec,
+    grid_map: GridMap | None,
+    map_source: str,
+    *,
+    mode: str,
+    isolate: bool,
+    max_seconds: float | None,
+    progress: bool,
+    child_progress: bool,
+    coverage: CoverageCache,
+    plot_dir: Path | None = None,
+    plot_name: str | None = None,
+) -> tuple[dict[str, Any], OutputScores | None]:
+    """One replay (child process unless not ``isolate``): its ``summary.json`` fields and per-output scores.
+
+    The coverage fields come from ``coverage`` (computed once per bag and map). A failed run
+    gives ``{"mode", "error"}`` and no scores. ``plot_dir``: write the plots there, named
+    ``plot_name`` (default: the localizer's name).
+    """
+    print(f"rls_bench: {reference.name} / {spec.name} ({mode}) ...", file=sys.stderr, flush=True)
+    kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
+    started = time.perf_counter()
+    status, result = call_guarded(replay_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
+                                  max_seconds=max_seconds, child_progress=child_progress)
+    if status != "ok":
+        LOG.error("[%s/%s] failed: %s", reference.name, spec.name, result)
+        return {"mode": mode, "error": str(result).splitlines()[0]}, None
+    fields, series = summarize_run(result, reference)
+    scan_coverage = None if spec.uses_camera else coverage.get(reference, grid_map, map_source, spec.mount)
+    scores = replay_scores(result, series, scan_coverage)
+    if scores is not None and scan_coverage is not None:
+        fields.update(run_coverage_fields(scores))
+    fields["map"] = map_source
+    fields["wall_s"] = round(time.perf_counter() - started, 1)
+    print(f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}", file=sys.stderr, flush=True)
+    if plot_dir is not None:
+        from .plots import plot_run  # matplotlib only when plots are asked for
+
+        plot_run(plot_dir, plot_name or spec.name, grid_map, reference, result, series)
+    return fields, scores
+
+
+def global_fix_pair(
+    reference: BagReference,
+    spec: LocalizerSpec,
+    grid_map: GridMap | None,
+    map_source: str,
+    *,
+    every: int,
+    isolate: bool,
+    max_seconds: float | None,
+    child_progress: bool,
+    coverage: CoverageCache,
+) -> tuple[dict[str, Any] | None, OutputScores | None]:
+    """Single-scan global fixes of one localizer on one bag: fields and per-fix scores.
+
+    Fields None: the localizer has no ``global_fix``. A failed run gives ``{"mode", "error"}``.
+    """
+    print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
+          flush=True)
+    kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
+    status, result = call_guarded(global_fix_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
+                                  max_seconds=max_seconds, child_progress=child_progress)
+    if status != "ok":
+        return {"mode": "global_fixes", "error": str(result).splitlines()[0]}, None
+    if not result.supported:
+        return None, None
+    if result.error:
+        return {"mode": "global_fixes", "error": result.error}, None
+    fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
+    scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
+    scores = global_fix_scores(result, scan_coverage)
+    if scan_coverage is not None:
+        fields.update(run_coverage_fields(scores))
+    print(f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
+          f"fix {fields['fix_ms_median']} ms", file=sys.stderr, flush=True)
+    return fields, scores
 
 
 def run_benchmark(
@@ -74,6 +156,7 @@ def run_benchmark(
         if reference.ground_truth is None:
             LOG.warning("bag %s has no %s: reporting timing only", reference.name, TRUTH_TOPIC)
             print(f"rls_bench: bag {reference.name} has no {TRUTH_TOPIC}; reporting timing only", file=sys.stderr)
+    coverage = CoverageCache()
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
         if skip is not None:
             summary[reference.name][spec.name] = {"mode": mode, "skipped": skip}
@@ -83,24 +166,10 @@ def run_benchmark(
             summary[reference.name][spec.name] = {"mode": mode, "error": "no map: give --map, a /map in the bag, "
                                                   f"or one of {', '.join(str(p) for p in map_candidates(reference.name))}"}
             continue
-        print(f"rls_bench: {reference.name} / {spec.name} ({mode}) ...", file=sys.stderr, flush=True)
-        kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
-        started = time.perf_counter()
-        status, result = call_guarded(replay_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
-                                      max_seconds=max_seconds, child_progress=child_progress)
-        if status != "ok":
-            LOG.error("[%s/%s] failed: %s", reference.name, spec.name, result)
-            summary[reference.name][spec.name] = {"mode": mode, "error": str(result).splitlines()[0]}
-            continue
-        fields, series = summarize_run(result, reference)
-        fields["map"] = map_source
-        fields["wall_s"] = round(time.perf_counter() - started, 1)
-        summary[reference.name][spec.name] = fields
-        print(f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}", file=sys.stderr, flush=True)
-        if plots:
-            from .plots import plot_run  # matplotlib only when plots are asked for
-
-            plot_run(out / "plots" / reference.name, spec.name, grid_map, reference, result, series)
+        summary[reference.name][spec.name], _ = replay_pair(
+            reference, spec, grid_map, map_source, mode=mode, isolate=isolate, max_seconds=max_seconds,
+            progress=progress, child_progress=child_progress, coverage=coverage,
+            plot_dir=out / "plots" / reference.name if plots else None)
     write_summary(out, summary, title=f"rls_bench ({mode} mode)")
     return summary
 
@@ -125,26 +194,14 @@ def run_global_fixes(
     out.mkdir(parents=True, exist_ok=True)
     references = [load_reference(b) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
+    coverage = CoverageCache()
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
         if skip is not None or spec.uses_camera:
             continue
         grid_map, map_source = resolve_map(reference, map_yaml)
-        print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
-              flush=True)
-        kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
-        status, result = call_guarded(global_fix_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
-                                      max_seconds=max_seconds, child_progress=child_progress)
-        if status != "ok":
-            summary[reference.name][spec.name] = {"mode": "global_fixes", "error": str(result).splitlines()[0]}
-            continue
-        if not result.supported:
-            continue
-        if result.error:
-            summary[reference.name][spec.name] = {"mode": "global_fixes", "error": result.error}
-            continue
-        fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
-        summary[reference.name][spec.name] = fields
-        print(f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
-              f"fix {fields['fix_ms_median']} ms", file=sys.stderr, flush=True)
+        fields, _ = global_fix_pair(reference, spec, grid_map, map_source, every=every, isolate=isolate,
+                                    max_seconds=max_seconds, child_progress=child_progress, coverage=coverage)
+        if fields is not None:
+            summary[reference.name][spec.name] = fields
     write_summary(out, summary, title=f"rls_bench --global-fixes (every {every}th scan)")
     return summary

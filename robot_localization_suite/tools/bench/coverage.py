@@ -1,0 +1,171 @@
+"""Map coverage of each output's scan, the rates over well-covered outputs, and pooling runs.
+
+A run's outputs become :class:`OutputScores` (per output: counted, correct, fine, the map
+coverage of its scan); :func:`pooled_fields` turns one or several of them (the blocks of a
+cross-validation split) into rates over all their outputs together. Definitions:
+``docs/benchmark.md``, "Map coverage".
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ...core import metrics
+from ...core.errors import LocalizationSuiteError
+from ...core.grid_map import GridMap
+from ...core.scan import LaserMount
+from .global_fixes import GlobalFixRecord
+from .reference import BagReference
+from .replay import RunRecord
+
+if TYPE_CHECKING:
+    from ..scan_coverage import ScanCoverage
+
+__all__ = [
+    "CoverageCache",
+    "OutputScores",
+    "replay_scores",
+    "global_fix_scores",
+    "pooled_fields",
+    "run_coverage_fields",
+]
+
+LOG = logging.getLogger("rls_bench")
+
+
+class CoverageCache:
+    """``bag_scan_coverage`` once per (bag, map, laser mount), whatever the number of localizers."""
+
+    def __init__(self) -> None:
+        self._done: dict[tuple[str, str, LaserMount], ScanCoverage | None] = {}
+
+    def get(self, reference: BagReference, grid_map: GridMap | None, map_key: str,
+            mount: LaserMount) -> ScanCoverage | None:
+        """Coverage of every scan of the bag on ``grid_map`` (``map_key`` names it); None without
+        scans, ground truth or map."""
+        key = (str(reference.path), map_key, mount)
+        if key not in self._done:
+            self._done[key] = None
+            if grid_map is not None and reference.has_scan and reference.ground_truth is not None:
+                from ..scan_coverage import bag_scan_coverage  # reads bags: ROS modules load here
+
+                try:
+                    self._done[key] = bag_scan_coverage(reference.path, grid_map, mount=mount)
+                except LocalizationSuiteError as exc:
+                    LOG.warning("bag %s: no map coverage: %s", reference.name, exc)
+        return self._done[key]
+
+
+@dataclass(frozen=True)
+class OutputScores:
+    """Per output of one run, what its rates count; concatenated over runs, they pool them.
+
+    Attributes:
+        kind: ``replay`` or ``global_fixes``.
+        counted: outputs the rates count. Replays: from the run's first fix on, with truth
+            (``correct_rate``'s convention); a run without a fix: all its outputs with truth.
+            Global fixes: the fixes with truth.
+        correct, fine: per output.
+        coverage: map coverage of the output's scan (NaN: unknown).
+        fixed: a replay reached a fix.
+        recall: global fixes, ``(F, len(RECALL_KS))``: a correct candidate among the first k.
+    """
+
+    kind: str
+    counted: NDArray[np.bool_]
+    correct: NDArray[np.bool_]
+    fine: NDArray[np.bool_]
+    coverage: NDArray[np.float64]
+    fixed: bool = True
+    recall: NDArray[np.bool_] | None = None
+
+
+def _coverage_at(coverage: ScanCoverage | None, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
+    return coverage.at(stamps) if coverage is not None else np.full(stamps.shape, np.nan)
+
+
+def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCoverage | None) -> OutputScores | None:
+    """The scores of a replay from ``summarize_run``'s per-output series; None without ground truth."""
+    if "correct" not in series:
+        return None
+    correct = np.asarray(series["correct"], dtype=bool)
+    has_truth = np.isfinite(np.asarray(series["position_error_m"], dtype=np.float64))
+    fix = metrics.first_fix_index(record.stamps, correct)
+    counted = has_truth & (np.arange(correct.size) >= (fix if fix is not None else 0))
+    return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
+                        _coverage_at(coverage, record.stamps), fixed=fix is not None)
+
+
+def global_fix_scores(record: GlobalFixRecord, coverage: ScanCoverage | None) -> OutputScores:
+    """The scores of single-scan global fixes (a failed fix is not correct)."""
+    with_truth = np.all(np.isfinite(record.truths), axis=1)
+    dxy, dtheta = metrics.pose_errors(record.estimates, record.truths)
+    recall = np.array([[r[k] for k in metrics.RECALL_KS] for r in record.recalls], dtype=bool)
+    return OutputScores("global_fixes", with_truth, metrics.correct_mask(dxy, dtheta) & with_truth,
+                        metrics.fine_mask(dxy, dtheta) & with_truth, _coverage_at(coverage, record.stamps),
+                        recall=recall.reshape(-1, len(metrics.RECALL_KS)))
+
+
+def _rate(values: NDArray[np.bool_]) -> float | None:
+    return round(float(np.mean(values)), 4) if values.size else None
+
+
+def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
+    """Rates over the outputs of ``runs`` together (not a mean of their rates).
+
+    Replays: ``outputs`` (counted), ``correct_rate``, ``fine_rate``, ``outputs_covered``,
+    ``correct_rate_covered``, ``map_coverage_median`` (over all outputs with a coverage),
+    ``runs_without_fix``. Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
+    ``recall_at_k``, ``fixes_covered``, ``global_correct_rate_covered``, ``map_coverage_median``.
+    """
+    if not runs:
+        return {}
+    counted = np.concatenate([r.counted for r in runs])
+    correct = np.concatenate([r.correct for r in runs])[counted]
+    fine = np.concatenate([r.fine for r in runs])[counted]
+    coverage = np.concatenate([r.coverage for r in runs])
+    known = coverage[np.isfinite(coverage)]
+    rates = metrics.coverage_rates(correct, coverage[counted])
+    median = round(float(np.median(known)), 4) if known.size else None
+    if runs[0].kind == "global_fixes":
+        recall = np.concatenate([r.recall if r.recall is not None else np.zeros((0, len(metrics.RECALL_KS)), bool)
+                                 for r in runs])[counted]
+        return {
+            "fixes": int(counted.sum()),
+            "global_correct_rate": _rate(correct),
+            "global_fine_rate": _rate(fine),
+            "recall_at_k": {str(k): _rate(recall[:, i]) for i, k in enumerate(metrics.RECALL_KS)},
+            "fixes_covered": rates["outputs_covered"],
+            "global_correct_rate_covered": rates["correct_rate_covered"],
+            "map_coverage_median": median,
+        }
+    return {
+        "outputs": int(counted.sum()),
+        "correct_rate": _rate(correct),
+        "fine_rate": _rate(fine),
+        "outputs_covered": rates["outputs_covered"],
+        "correct_rate_covered": rates["correct_rate_covered"],
+        "map_coverage_median": median,
+        "runs_without_fix": sum(not r.fixed for r in runs),
+    }
+
+
+def run_coverage_fields(scores: OutputScores) -> dict[str, Any]:
+    """The coverage fields of one run: ``map_coverage_median`` and the rates over covered outputs
+    (``correct_rate_covered`` and ``outputs_covered``, null without a fix, as ``correct_rate``;
+    for global fixes ``global_correct_rate_covered`` and ``fixes_covered``)."""
+    pooled = pooled_fields([scores])
+    if scores.kind == "global_fixes":
+        keys = ("map_coverage_median", "fixes_covered", "global_correct_rate_covered")
+        return {key: pooled[key] for key in keys}
+    return {
+        "map_coverage_median": pooled["map_coverage_median"],
+        "outputs_covered": pooled["outputs_covered"] if scores.fixed else None,
+        "correct_rate_covered": pooled["correct_rate_covered"] if scores.fixed else None,
+    }
