@@ -16,6 +16,7 @@ from echo_localizer import EchoLocalizer
 from tqdm import tqdm
 
 from robot_localization_suite.core import metrics
+from robot_localization_suite.core.errors import SettingsError
 from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.localizer import Place
 from robot_localization_suite.core.progress import progress_disabled
@@ -500,3 +501,9 @@ def test_the_package_runs_as_a_module():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("usage: rls_bench")
+
+
+def test_an_override_naming_no_parameter_is_refused_before_anything_runs():
+    with pytest.raises(SettingsError, match="mcl_baseline has no parameter 'alpha_1'"):
+        bench.registry_spec("mcl_baseline", {"alpha_1": 0.1})
+    assert bench.registry_spec("mcl_baseline", {"alpha1": 0.1, "laser_x": 0.2}).mount.x == 0.2

@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ... import registry
+from ...core.errors import SettingsError
 from ...core.scan import LaserMount
+from ...core.settings import parameters, unknown_params
 
 __all__ = ["LocalizerSpec", "registry_spec"]
 
@@ -50,8 +52,16 @@ def _plugin_factory(name: str, settings: Any) -> Any:
 
 
 def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LocalizerSpec:
-    """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``."""
+    """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``.
+
+    Raises:
+        SettingsError: an override names no parameter of the localizer (a typo would silently do nothing).
+    """
     plugin = registry.plugin(name)
+    unknown = [key for key in unknown_params(plugin.settings, dict(overrides or {}))
+               if key not in {p.name for p in parameters(registry.NodeSettings)}]
+    if unknown:
+        raise SettingsError(f"{name} has no parameter {', '.join(map(repr, unknown))} (see {name} --help)")
     node_settings, settings = plugin.load_settings(overrides)
     return LocalizerSpec(
         name=name,
