@@ -189,7 +189,7 @@ def candidates_correct(candidates: ArrayLike, truth: ArrayLike) -> NDArray[np.bo
         return np.zeros(truth.shape[0], dtype=bool)
     count, k = candidates.shape[:2]
     dxy, dtheta = pose_errors(candidates.reshape(-1, 3), np.repeat(truth, k, axis=0))
-    return correct_mask(dxy, dtheta).reshape(count, k).any(axis=1)
+    return np.asarray(correct_mask(dxy, dtheta).reshape(count, k).any(axis=1), dtype=bool)
 
 
 def first_fix_index(
@@ -367,10 +367,10 @@ def evaluate_global_fixes(
     dxy, dtheta = pose_errors(estimates, truths)
     fields: dict[str, Any] = {"fixes": int(fix_ms.size), "fixes_with_truth": int(with_truth.sum())}
     if with_truth.any():
-        fields["global_correct_rate"] = _rounded(np.mean(correct_mask(dxy, dtheta)[with_truth]))
-        fields["global_fine_rate"] = _rounded(np.mean(fine_mask(dxy, dtheta)[with_truth]))
+        fields["global_correct_rate"] = _rounded(float(np.mean(correct_mask(dxy, dtheta)[with_truth])))
+        fields["global_fine_rate"] = _rounded(float(np.mean(fine_mask(dxy, dtheta)[with_truth])))
         kept = [r for r, keep in zip(recalls, with_truth, strict=True) if keep]
-        fields["recall_at_k"] = {str(k): _rounded(np.mean([r[k] for r in kept])) for k in ks}
+        fields["recall_at_k"] = {str(k): _rounded(float(np.mean([r[k] for r in kept]))) for k in ks}
     else:
         fields["global_correct_rate"] = None
         fields["global_fine_rate"] = None
@@ -437,8 +437,8 @@ def map_coverage(
     tolerance = COVERAGE_TOLERANCE_CELLS * grid_map.resolution if tolerance is None else float(tolerance)
     if not np.isfinite(tolerance) or tolerance < 0.0:
         raise ValueError(f"map_coverage: tolerance must be >= 0 m, got {tolerance!r}")
-    upper = np.asarray(range_max, dtype=np.float64).reshape(-1, 1) if np.ndim(range_max) else float(range_max)
-    lower = np.asarray(range_min, dtype=np.float64).reshape(-1, 1) if np.ndim(range_min) else float(range_min)
+    upper = np.asarray(range_max, dtype=np.float64).reshape(-1, 1) if np.ndim(range_max) else float(np.asarray(range_max))
+    lower = np.asarray(range_min, dtype=np.float64).reshape(-1, 1) if np.ndim(range_min) else float(np.asarray(range_min))
     with np.errstate(invalid="ignore"):
         hit = np.isfinite(ranges) & (ranges >= lower) & (ranges < upper)
     length = np.where(hit, ranges, 0.0)
@@ -462,8 +462,8 @@ def coverage_at_stamps(
     Outputs carry their input scan's stamp, so a localizer's outputs find their scans exactly.
     """
     query = np.atleast_1d(np.asarray(query_stamps, dtype=np.float64))
-    stamps = np.asarray(scan_stamps, dtype=np.float64).reshape(-1)
-    values = np.asarray(coverage, dtype=np.float64).reshape(-1)
+    stamps: NDArray[np.float64] = np.asarray(scan_stamps, dtype=np.float64).reshape(-1)
+    values: NDArray[np.float64] = np.asarray(coverage, dtype=np.float64).reshape(-1)
     if stamps.shape != values.shape:
         raise ValueError(f"coverage_at_stamps: {stamps.size} scan stamps but {values.size} coverages")
     out = np.full(query.shape, np.nan)

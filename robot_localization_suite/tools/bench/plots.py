@@ -108,7 +108,7 @@ def plot_run(
     if record.update_ms.size:
         positive = np.maximum(record.update_ms, 1e-3)
         bins = np.logspace(np.log10(positive.min()), np.log10(positive.max()) + 1e-9, 40)
-        axes.hist(positive, bins=bins)
+        axes.hist(positive, bins=bins.tolist())
         axes.set_xscale("log")
         axes.axvline(np.median(positive), color="k", lw=0.8, label=f"median {np.median(positive):.2f} ms")
         axes.axvline(np.percentile(positive, 95), color="tab:red", lw=0.8,
