@@ -22,6 +22,7 @@ from .core.ima.settings import ImaTrackerSettings
 from .core.ir.settings import IRSettings
 from .core.mcl.settings import MclSettings
 from .core.pil.settings import PilSettings
+from .core.filter.odometry_gate import TIME_JUMP_RESET_S
 from .core.scan import LaserMount
 from .core.settings import Settings, from_params, read_params_file, setting
 
@@ -52,6 +53,11 @@ class NodeSettings(Settings):
     laser_y: float = setting(0.0, "laser position in the base frame, y", unit="m", low=-100.0, high=100.0)
     laser_yaw: float = setting(0.0, "laser heading in the base frame", unit="rad", low=-3.1416, high=3.1416)
     max_published_candidates: int = setting(2000, "cap on the poses in ~/candidates", low=0, high=1_000_000)
+    max_future_s: float = setting(1.0, "an input stamped more than this ahead of the newest one is dropped and does not "
+                                  "move the node's time", unit="s", low=0.0, high=3600.0)
+    time_jump_reset_s: float = setting(TIME_JUMP_RESET_S, "an input stamped more than this before its stream's last "
+                                       "one starts a new timeline (a bag looped, a simulator restarted)", unit="s",
+                                       low=0.0, low_open=True, high=3600.0)
 
     @property
     def mount(self) -> LaserMount:

@@ -204,3 +204,17 @@ def test_same_map_from_topic_is_not_handed_over_twice_but_a_changed_one_is():
     changed.data[5, 5] = 100
     adapter.on_map_msg(conversions.grid_map_to_msg(changed, 1.0))
     assert core.grid_map is not first and core.grid_map.data[5, 5] == 100
+
+
+def test_the_input_clock_refuses_the_future_steps_over_small_steps_back_and_restarts_after_a_jump() -> None:
+    from robot_localization_suite.ros.adapter import InputClock
+
+    clock = InputClock(max_future_s=1.0, time_jump_reset_s=3.0)
+    assert clock.admit("scan", 100.0) == "ok"
+    assert clock.admit("odom", 100.5) == "ok"
+    assert clock.admit("scan", 102.0) == "future"  # 1.5 s ahead of the newest (100.5)
+    assert clock.newest == 100.5  # a refused stamp does not move the clock
+    assert clock.admit("scan", 99.0) == "older"  # 1 s back on its own stream: refused
+    assert clock.admit("scan", 96.0) == "reset"  # 4 s back: a new timeline
+    assert clock.admit("odom", 96.1) == "ok" and clock.newest == 96.1
+    assert clock.admit("odom", float("nan")) == "future"

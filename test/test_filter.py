@@ -203,3 +203,13 @@ def test_refinement_recovers_a_known_small_offset(options: dict[str, float]) -> 
     same, zero = refine_poses(field, start, np.zeros(0), np.zeros(0), iterations=5, max_shift=0.3, **options)
     np.testing.assert_array_equal(same, start)
     assert np.all(zero == 0.0)
+
+
+def test_time_going_back_by_more_than_the_jump_threshold_starts_a_new_timeline() -> None:
+    gate = OdometryGate(0.1, 0.1, time_jump_s=3.0)
+    assert gate.add(10.0, [0.0, 0.0, 0.0]) and gate.add(11.0, [1.0, 0.0, 0.0])
+    gate.mark_updated(gate.latest)
+    assert not gate.add(9.0, [0.0, 0.0, 0.0]) and gate.rejected == 1  # 2 s back: refused
+    assert gate.add(5.0, [7.0, 7.0, 0.0]) and gate.time_jumps == 1  # 6 s back: restarted
+    assert gate.reference is None and gate.forced
+    assert np.allclose(gate.latest, [7.0, 7.0, 0.0]) and np.allclose(gate.at(11.0), [7.0, 7.0, 0.0])

@@ -115,3 +115,49 @@ def test_a_new_map_reseeds_around_the_laser_pose_with_a_mount_offset() -> None:
     centre = localizer.particles[:, :2].mean(axis=0)
     assert np.hypot(*(centre - run.truth[k, :2])) < 0.1
     assert np.hypot(*(centre - base[k, :2])) > 0.2
+
+
+def _scan_msg(scan, stamp=None):  # noqa: ANN001, ANN202
+    return conversions.scan_to_msg(
+        scan.stamp if stamp is None else stamp, "laser", angle_min=scan.angles[0],
+        angle_increment=scan.angles[1] - scan.angles[0], ranges=scan.ranges, range_min=scan.range_min,
+        range_max=scan.range_max,
+    )
+
+
+def test_one_message_stamped_in_2038_does_not_stop_the_node_and_time_going_back_restarts_it() -> None:
+    """The issue's attack: a LaserScan and an Odometry stamped 2^31 - 1, before and in the middle of a run."""
+    office = office_map()
+    run = drive(office, steps=80, seed=3)
+    localizer = MonteCarloLocalizer(MclSettings(min_particles=500, max_particles=3000, random_seed=2))
+    logs: list[tuple[str, str]] = []
+    adapter = LocalizerAdapter(localizer, node_name="mcl_baseline", log=lambda *a: logs.append(a))
+    adapter.set_map(office)
+    far = float(2**31 - 1)
+    # first messages ever: the attack
+    adapter.on_odom_msg(conversions.odometry_to_msg(far, np.zeros(3), frame_id="odom"))
+    adapter.on_scan_msg(_scan_msg(run.scans[0], far))
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2] * 3)))
+    outputs = []
+    for k in range(len(run.stamps)):
+        adapter.on_odom_msg(conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom"))
+        if k == 40:  # and again in the middle: refused, and it does not move the node's time
+            adapter.on_odom_msg(conversions.odometry_to_msg(far, run.odometry[k], frame_id="odom"))
+            assert adapter.on_scan_msg(_scan_msg(run.scans[k], far)) is None
+        output = adapter.on_scan_msg(_scan_msg(run.scans[k]))
+        if output is not None:
+            outputs.append(output)
+    assert len(outputs) > 10
+    assert outputs[-1].estimate.status is LocalizerStatus.LOCALIZED
+    k = int(np.argmin(np.abs(run.stamps - outputs[-1].estimate.stamp)))
+    assert np.hypot(*(outputs[-1].estimate.pose[:2] - run.truth[k, :2])) < 0.15
+    texts = " ".join(text for _, text in logs)
+    assert "time jumped back" in texts and "ahead of the newest input" in texts
+    # a bag that loops: the same run again from t = 0 starts a new timeline and the node keeps localizing
+    again = []
+    for k in range(len(run.stamps)):
+        adapter.on_odom_msg(conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom"))
+        output = adapter.on_scan_msg(_scan_msg(run.scans[k]))
+        if output is not None:
+            again.append(output)
+    assert len(again) > 10 and localizer.odometry.time_jumps >= 1

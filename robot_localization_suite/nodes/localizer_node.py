@@ -75,6 +75,8 @@ class LocalizerNode(Node):
             extras_builder=(lambda estimate: {key: extra.build(estimate) for key, extra in extras.items()})
             if extras else None,
             max_candidates=self.node_settings.max_published_candidates,
+            max_future_s=self.node_settings.max_future_s,
+            time_jump_reset_s=self.node_settings.time_jump_reset_s,
         )
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "~/pose", RELIABLE_QOS)
         self.candidates_pub = self.create_publisher(PoseArray, "~/candidates", RELIABLE_QOS)

@@ -14,6 +14,7 @@ is exact for a rigid mount and keeps every core method free of the offset.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -24,12 +25,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
+from ..core.filter.odometry_gate import TIME_JUMP_RESET_S
 from ..core.localizer import CameraLocalizer, Estimate, Localizer
 from ..core.scan import LaserMount
 from ..core.se2 import compose, inverse
 from . import conversions
 
-__all__ = ["AdapterOutput", "LocalizerAdapter", "ThrottledLog"]
+__all__ = ["AdapterOutput", "InputClock", "LocalizerAdapter", "ThrottledLog"]
 
 
 class ThrottledLog:
@@ -99,6 +101,40 @@ def _same_map(a: Any, b: Any) -> bool:
     )
 
 
+class InputClock:
+    """The node's time as its inputs tell it, guarded against stamps that jump.
+
+    A stamp more than ``max_future_s`` ahead of the newest accepted one (of any stream) is refused
+    and does not move the clock: one message stamped in 2038 must not make every later real
+    message look old. A stamp more than ``time_jump_reset_s`` behind its own stream's last one
+    starts a new timeline (a bag looped, a simulator restarted), as ROS' time-jump handling does;
+    a smaller step back is refused. Verdicts: ``ok``, ``future``, ``older``, ``reset``.
+    """
+
+    def __init__(self, max_future_s: float = 1.0, time_jump_reset_s: float = TIME_JUMP_RESET_S) -> None:
+        self.max_future_s = float(max_future_s)
+        self.time_jump_reset_s = float(time_jump_reset_s)
+        self.newest: float | None = None
+        self._last: dict[str, float] = {}
+
+    def admit(self, stream: str, stamp: float) -> str:
+        """The verdict on ``stamp`` [s] of ``stream``; ``ok`` and ``reset`` accept it."""
+        if not math.isfinite(stamp):
+            return "future"
+        last = self._last.get(stream)
+        if last is not None and stamp < last - self.time_jump_reset_s:
+            self._last = {stream: stamp}
+            self.newest = stamp
+            return "reset"
+        if self.newest is not None and stamp > self.newest + self.max_future_s:
+            return "future"
+        if last is not None and stamp < last:
+            return "older"
+        self._last[stream] = stamp
+        self.newest = stamp if self.newest is None else max(self.newest, stamp)
+        return "ok"
+
+
 class LocalizerAdapter:
     """Bridge between ROS messages and one core localizer.
 
@@ -110,6 +146,7 @@ class LocalizerAdapter:
         extras_builder: turns an estimate into method-specific messages, keyed by
             topic suffix (e.g. ``{"boxes": MarkerArray}``).
         max_candidates: cap on the poses put in the candidates message.
+        max_future_s, time_jump_reset_s: the :class:`InputClock`'s limits [s].
     """
 
     def __init__(
@@ -121,6 +158,8 @@ class LocalizerAdapter:
         mount: LaserMount | None = None,
         extras_builder: Callable[[Estimate], dict[str, Any]] | None = None,
         max_candidates: int = 2000,
+        max_future_s: float = 1.0,
+        time_jump_reset_s: float = TIME_JUMP_RESET_S,
     ) -> None:
         self.localizer = localizer
         # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
@@ -136,8 +175,7 @@ class LocalizerAdapter:
             # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
             localizer.set_laser_mount(self.mount)
         self._extras_builder = extras_builder
-        self._last_odom_stamp = -np.inf
-        self._last_scan_stamp = -np.inf
+        self.clock = InputClock(max_future_s, time_jump_reset_s)
         self._last_beam_count: int | None = None
         self.has_map = False
         self._current_map: Any = None
@@ -169,14 +207,8 @@ class LocalizerAdapter:
         if not np.all(np.isfinite(pose)):
             self.log("warn", "odom_nan", f"ignoring odometry with non-finite pose {pose.tolist()!r}")
             return
-        if stamp < self._last_odom_stamp:
-            self.log(
-                "warn",
-                "odom_time",
-                f"ignoring odometry stamped {stamp:.3f} s, older than the last one ({self._last_odom_stamp:.3f} s)",
-            )
+        if not self._admit("odometry", stamp):
             return
-        self._last_odom_stamp = stamp
         self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
 
     def on_initial_pose_msg(self, msg: Any) -> None:
@@ -204,16 +236,14 @@ class LocalizerAdapter:
         except ScanError as exc:
             self.log("warn", "bad_scan", f"skipping scan: {exc}")
             return None
-        if scan.stamp < self._last_scan_stamp:
-            self.log("warn", "scan_time", f"skipping scan stamped {scan.stamp:.3f} s, older than the last one")
-            return None
         if not scan.hit_mask.any() and not scan.no_return_mask.any():
             self.log("warn", "no_valid_beam", f"skipping scan at {scan.stamp:.3f} s: no valid beam")
             return None
         if self._last_beam_count is not None and scan.beam_count != self._last_beam_count:
             self.log("info", "beam_count", f"beam count changed from {self._last_beam_count} to {scan.beam_count}")
+        if not self._admit("scan", scan.stamp):
+            return None
         self._last_beam_count = scan.beam_count
-        self._last_scan_stamp = scan.stamp
         laser = self._laser
         if laser is None:
             raise TypeError(f"{type(self.localizer).__name__} is not a laser Localizer: it cannot take scans")
@@ -226,10 +256,25 @@ class LocalizerAdapter:
             self.log("warn", "bad_image", f"skipping image: {exc}")
             return None
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
+        if not self._admit("image", stamp):
+            return None
         camera = self._camera
         if camera is None:
             raise TypeError(f"{type(self.localizer).__name__} is not a CameraLocalizer: it cannot take images")
         return self._run(lambda: camera.on_image(stamp, image))
+
+    def _admit(self, stream: str, stamp: float) -> bool:
+        """Whether an input stamped ``stamp`` is used (InputClock), with a throttled reason when not."""
+        verdict = self.clock.admit(stream, stamp)
+        if verdict == "future":
+            self.log("warn", f"{stream}_future", f"ignoring {stream} stamped {stamp:.3f} s: more than "
+                     f"{self.clock.max_future_s:g} s ahead of the newest input ({self.clock.newest:.3f} s)")
+        elif verdict == "older":
+            self.log("warn", f"{stream}_time", f"ignoring {stream} stamped {stamp:.3f} s, older than the last one")
+        elif verdict == "reset":
+            self.log("info", "time_jump", f"time jumped back to {stamp:.3f} s (more than {self.clock.time_jump_reset_s:g} s): "
+                       "starting a new timeline (a bag looped or a simulator restarted?)")
+        return verdict in ("ok", "reset")
 
     # -- outputs ------------------------------------------------------------------
     def _run(self, update: Callable[[], Estimate | None]) -> AdapterOutput | None:

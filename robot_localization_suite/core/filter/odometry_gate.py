@@ -19,10 +19,12 @@ from numpy.typing import ArrayLike, NDArray
 from ..motion import odometry_delta
 from ..se2 import angle_difference, wrap_angle
 
-__all__ = ["MotionMeasure", "OdometryGate", "DEFAULT_CAPACITY"]
+__all__ = ["MotionMeasure", "OdometryGate", "DEFAULT_CAPACITY", "TIME_JUMP_RESET_S"]
 
 #: Odometry poses kept at least (the buffer holds between this and twice this many).
 DEFAULT_CAPACITY = 2000
+#: A stamp this much older than the last one starts a new timeline [s] (ROS' time-jump handling).
+TIME_JUMP_RESET_S = 3.0
 
 
 class MotionMeasure(Enum):
@@ -61,6 +63,7 @@ class OdometryGate:
         measure: MotionMeasure = MotionMeasure.DISPLACEMENT,
         capacity: int = DEFAULT_CAPACITY,
         keep_steps: bool = False,
+        time_jump_s: float = TIME_JUMP_RESET_S,
     ) -> None:
         if not (min_translation >= 0.0 and min_rotation >= 0.0):
             raise ValueError(f"gate thresholds must be >= 0, got {min_translation!r} m, {min_rotation!r} rad")
@@ -71,7 +74,9 @@ class OdometryGate:
         self.measure = MotionMeasure(measure)
         self.capacity = int(capacity)
         self.keep_steps = bool(keep_steps)
+        self.time_jump_s = float(time_jump_s)
         self.rejected = 0
+        self.time_jumps = 0
         self._stamps: list[float] = []
         self._poses: list[Pose] = []
         self._step_start = 0  # index of the pose the next step of take_steps starts from
@@ -84,14 +89,20 @@ class OdometryGate:
         """Record odometry ``pose`` ``(3,)`` [m, m, rad] at ``stamp`` [s]; False (and counted) when rejected.
 
         A non-finite pose or stamp, or a stamp older than the last one, is rejected; a pose at the
-        last stamp replaces the last pose (with ``keep_steps``, it is one more step).
+        last stamp replaces the last pose (with ``keep_steps``, it is one more step). A stamp more
+        than ``time_jump_s`` older than the last one starts a new timeline (a bag looped, a simulator
+        restarted): the buffer and the reference are cleared and the next update is forced, so
+        time going back never blocks odometry for good.
         """
         pose_arr = np.array(pose, dtype=np.float64).reshape(-1)
         if pose_arr.size != 3 or not np.all(np.isfinite(pose_arr)) or not math.isfinite(stamp):
             self.rejected += 1
             return False
         stamps, poses = self._stamps, self._poses
-        if stamps and stamp < stamps[-1]:
+        if stamps and stamp < stamps[-1] - self.time_jump_s:
+            self.restart()
+            self.time_jumps += 1
+        elif stamps and stamp < stamps[-1]:
             self.rejected += 1
             return False
         if self.measure is MotionMeasure.PATH and poses:
@@ -144,6 +155,11 @@ class OdometryGate:
         self._stamps.clear()
         self._poses.clear()
         self._step_start = 0
+
+    def restart(self) -> None:
+        """A new timeline: no buffered odometry, no reference, the next update forced."""
+        self.clear()
+        self.reset(force=True)
 
     # -- the gate -------------------------------------------------------------------------
     def motion(self, pose: ArrayLike | None = None) -> tuple[float, float]:
