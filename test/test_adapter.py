@@ -23,6 +23,7 @@ class EchoLocalizer:
         self.odometry: list[tuple[float, np.ndarray]] = []
         self.scans: list[Scan] = []
         self.initial_poses: list[np.ndarray] = []
+        self.initial_covariances: list[np.ndarray] = []
         self.grid_map: GridMap | None = None
         self.fail_next = False
 
@@ -42,6 +43,7 @@ class EchoLocalizer:
 
     def set_initial_pose(self, pose: np.ndarray, covariance: np.ndarray) -> None:
         self.initial_poses.append(np.array(pose))
+        self.initial_covariances.append(np.array(covariance))
 
     def reinitialize(self) -> None:
         pass
@@ -218,3 +220,29 @@ def test_the_input_clock_refuses_the_future_steps_over_small_steps_back_and_rest
     assert clock.admit("scan", 96.0) == "reset"  # 4 s back: a new timeline
     assert clock.admit("odom", 96.1) == "ok" and clock.newest == 96.1
     assert clock.admit("odom", float("nan")) == "future"
+
+
+def test_an_initial_pose_with_an_unusable_covariance_gets_the_default_spread_and_a_warning() -> None:
+    adapter, core, logs = make_adapter()
+    pose = np.array([1.0, 2.0, 0.3])
+    good = np.diag([0.04, 0.09, 0.01])
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, pose, good))
+    np.testing.assert_allclose(core.initial_covariances[-1], good)
+    default = np.diag([0.5**2, 0.5**2, (np.pi / 12) ** 2])
+    for bad in (np.zeros((3, 3)), np.diag([0.04, -0.01, 0.01]), np.array([[1.0, 2.0, 0], [2.0, 1.0, 0], [0, 0, 1.0]]),
+                np.full((3, 3), np.nan)):
+        adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, pose, bad))
+        np.testing.assert_allclose(core.initial_covariances[-1], default)
+        np.testing.assert_allclose(core.initial_poses[-1], pose)
+    assert "is not positive definite: using the default spread (std 0.5 m, 0.5 m, 15 deg)" in logs.text()
+
+
+def test_a_scan_whose_angle_max_disagrees_with_its_increment_is_skipped_naming_the_values() -> None:
+    adapter, core, logs = make_adapter()
+    msg = scan_msg(1.0, [1.0] * 5)
+    msg.angle_max = float(msg.angle_max + 0.5)
+    assert adapter.on_scan_msg(msg) is None and not core.scans
+    assert "angle_max" in logs.text() and "disagrees" in logs.text()
+    off_by_one = scan_msg(2.0, [1.0] * 5)
+    off_by_one.angle_max = float(off_by_one.angle_max + off_by_one.angle_increment)  # a driver's end of the last sector
+    assert adapter.on_scan_msg(off_by_one) is not None

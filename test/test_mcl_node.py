@@ -161,3 +161,26 @@ def test_one_message_stamped_in_2038_does_not_stop_the_node_and_time_going_back_
         if output is not None:
             again.append(output)
     assert len(again) > 10 and localizer.odometry.time_jumps >= 1
+
+
+def test_the_cores_python_log_reaches_the_nodes_ros_log() -> None:
+    """A corrupt cache is reported through Python logging in core/: the node forwards it to its ROS log."""
+    import logging
+
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    rclpy.init(args=["mcl_baseline"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    seen: list[tuple[str, str]] = []
+    try:
+        node._log_handler._sink = lambda level, text: seen.append((level, text))
+        logging.getLogger("robot_localization_suite.core.ir.index").warning("IR cache %s is unreadable; rebuilding it", "x.npz")
+        logging.getLogger("robot_localization_suite.core.pil.learning").info("relearning for 180 deg")
+        logging.getLogger("robot_localization_suite.core").debug("not forwarded")
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    assert seen == [("warn", "IR cache x.npz is unreadable; rebuilding it"), ("info", "relearning for 180 deg")]
+    logging.getLogger("robot_localization_suite.core").warning("after the node is gone")
+    assert len(seen) == 2

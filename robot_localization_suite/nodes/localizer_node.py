@@ -8,7 +8,8 @@ which the benchmark runs too.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import logging
+from collections.abc import Callable, Mapping, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
@@ -30,6 +31,8 @@ from .common import guarded, help_parser, run_node
 
 __all__ = ["LocalizerNode", "run_localizer", "topics_text"]
 
+_PACKAGE_LOGGER = logging.getLogger("robot_localization_suite")
+
 # Odometry must not be lost, yet must accept best-effort publishers too.
 _ODOM_QOS = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
 
@@ -48,6 +51,18 @@ def topics_text(plugin: LocalizerPlugin) -> str:
     return "\n".join(lines)
 
 
+class _RosLogHandler(logging.Handler):
+    """Python log records of the package (cache warnings, relearning notices) into the node's ROS log."""
+
+    def __init__(self, sink: Callable[[str, str], None]) -> None:
+        super().__init__(logging.INFO)
+        self._sink = sink
+
+    def emit(self, record: logging.LogRecord) -> None:
+        level = "error" if record.levelno >= logging.ERROR else "warn" if record.levelno >= logging.WARNING else "info"
+        self._sink(level, record.getMessage())
+
+
 class LocalizerNode(Node):
     """A localizer node running one plugin.
 
@@ -62,6 +77,10 @@ class LocalizerNode(Node):
     ) -> None:
         super().__init__(node_name or plugin.name)
         self.plugin = plugin
+        # Before anything that may log: the core reports through Python logging (a corrupt cache, a relearning).
+        self._log_handler = _RosLogHandler(self._log)
+        _PACKAGE_LOGGER.addHandler(self._log_handler)
+        _PACKAGE_LOGGER.setLevel(logging.INFO)
         values = declare_settings(self, NodeSettings, plugin.settings)
         self.node_settings = from_params(NodeSettings, values)
         self.settings = from_params(plugin.settings, values)
@@ -101,6 +120,10 @@ class LocalizerNode(Node):
         if self.node_settings.map_yaml and not plugin.uses_camera:
             self._load_map(self.node_settings.map_yaml)
         self.get_logger().info(f"{self.get_name()} ready")
+
+    def destroy_node(self) -> None:
+        _PACKAGE_LOGGER.removeHandler(self._log_handler)
+        super().destroy_node()
 
     def _log(self, level: str, text: str) -> None:
         # One call site per severity: rclpy refuses a second severity from the same

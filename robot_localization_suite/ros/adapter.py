@@ -101,6 +101,17 @@ def _same_map(a: Any, b: Any) -> bool:
     )
 
 
+# Spread of an initial pose whose covariance cannot be used: ROS 1 amcl's (0.5 m, 0.5 m, pi/12 rad).
+DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
+
+
+def _positive_definite(covariance: NDArray[np.float64]) -> bool:
+    """Whether a ``(3, 3)`` covariance is finite, symmetric and positive definite."""
+    if not np.all(np.isfinite(covariance)) or not np.allclose(covariance, covariance.T, atol=1e-9):
+        return False
+    return bool(np.linalg.eigvalsh(covariance).min() > 0.0)
+
+
 class InputClock:
     """The node's time as its inputs tell it, guarded against stamps that jump.
 
@@ -213,9 +224,15 @@ class LocalizerAdapter:
 
     def on_initial_pose_msg(self, msg: Any) -> None:
         pose, covariance = conversions.initial_pose_from_msg(msg)
-        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(covariance))):
+        if not np.all(np.isfinite(pose)):
             self.log("warn", "initialpose", f"ignoring initial pose with non-finite values {pose.tolist()!r}")
             return
+        if not _positive_definite(covariance):
+            self.log("warn", "initialpose_covariance",
+                     f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is not positive definite: "
+                     f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
+                     f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
+            covariance = np.diag(np.square(DEFAULT_INITIAL_STD))
         self._info("info", f"initial pose x={pose[0]:.2f} y={pose[1]:.2f} yaw={pose[2]:.2f}")
         self.localizer.set_initial_pose(compose(pose, self.mount.pose), covariance)
 

@@ -6,6 +6,7 @@ rosbags' deserialised dataclasses alike); builders return rclpy messages.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -63,6 +64,14 @@ def scan_from_msg(msg: Any) -> Scan:
     ranges = np.asarray(msg.ranges, dtype=np.float64)
     if ranges.size == 0:
         raise ScanError("LaserScan has no ranges")
+    angle_min, increment, angle_max = float(msg.angle_min), float(msg.angle_increment), float(msg.angle_max)
+    expected = angle_min + (ranges.size - 1) * increment
+    # One increment of slack: some drivers report the end of the last beam's sector.
+    if math.isfinite(angle_max) and math.isfinite(expected) and abs(angle_max - expected) > abs(increment) + 1e-4:
+        raise ScanError(
+            f"LaserScan angle_max {angle_max!r} disagrees with angle_min {angle_min!r} + ({ranges.size} - 1) x "
+            f"angle_increment {increment!r} = {expected!r}"
+        )
     return Scan.from_laser_fields(
         stamp=stamp_to_seconds(msg.header.stamp),
         angle_min=float(msg.angle_min),
