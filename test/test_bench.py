@@ -111,6 +111,8 @@ def test_kidnap_recovery_and_outputs_end_to_end(kidnap_bag, tmp_path):
     assert fields["correct"] == 181 and fields["fine"] == 181  # 20 outputs 3 m off, the rest exact
     assert fields["correct_rate"] == pytest.approx(181 / 201, abs=1e-4)
     assert fields["rmse_xy_m"] == pytest.approx(0.0, abs=1e-6)  # the wrong ones fall in the recovery
+    # The echo says LOCALIZED at every output, also the 20 that are 3 m off.
+    assert fields["localized_rate"] == 1.0 and fields["false_localized_rate"] == pytest.approx(20 / 201, abs=1e-4)
     assert fields["update_ms_median"] is not None and fields["update_ms_p95"] >= fields["update_ms_median"]
     assert fields["peak_rss_mb"] > 10
     assert fields["map"] == "room_kidnap:/map"

@@ -312,3 +312,13 @@ def test_coverage_rates_split_correct_outputs_by_coverage():
     assert rates["coverage_median"] == pytest.approx(0.8)
     empty = metrics.coverage_rates(np.zeros(0, bool), np.zeros(0))
     assert empty["correct_rate_covered"] is None and empty["coverage_median"] is None
+
+
+def test_status_fields_count_every_output_and_only_localized_ones_can_be_falsely_localized() -> None:
+    statuses = ["INITIALIZING", "AMBIGUOUS", "LOCALIZED", "LOCALIZED", "LOST", "LOCALIZED"]
+    correct = [False, False, True, False, False, True]
+    fields = metrics.status_fields(statuses, correct)
+    assert fields == {"localized_outputs": 3, "localized_rate": 0.5, "false_localized_rate": 0.3333}
+    assert metrics.status_fields(["AMBIGUOUS"], [False])["false_localized_rate"] is None
+    with pytest.raises(ValueError, match="2 statuses but 1"):
+        metrics.status_fields(["LOST", "LOST"], [True])

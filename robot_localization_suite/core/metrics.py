@@ -48,6 +48,7 @@ __all__ = [
     "fine_mask",
     "first_fix_index",
     "evaluate_outputs",
+    "status_fields",
     "timing_fields",
     "boxes_contain",
     "nearest_node_is_place",
@@ -216,6 +217,25 @@ def _rounded(value: float | None, digits: int = 4) -> float | None:
     if value is None or not np.isfinite(value):
         return None
     return round(float(value), digits)
+
+
+def status_fields(statuses: Sequence[str], correct: ArrayLike) -> dict[str, Any]:
+    """How far a localizer's own verdict can be trusted, over all its outputs.
+
+    ``localized_rate``: outputs reported LOCALIZED over all outputs; ``false_localized_rate``:
+    LOCALIZED outputs that are not correct over all LOCALIZED outputs (null when none is); both
+    count every output, before the first fix too: a robot acts on LOCALIZED whenever it is said.
+    """
+    localized = np.asarray([s == "LOCALIZED" for s in statuses], dtype=bool)
+    good = np.asarray(correct, dtype=bool).reshape(-1)
+    if localized.size != good.size:
+        raise ValueError(f"status_fields: {localized.size} statuses but {good.size} correctness flags")
+    count = int(localized.sum())
+    return {
+        "localized_outputs": count,
+        "localized_rate": _rounded(count / localized.size) if localized.size else None,
+        "false_localized_rate": _rounded(float(np.mean(~good[localized]))) if count else None,
+    }
 
 
 def timing_fields(update_ms: ArrayLike) -> dict[str, float | None]:

@@ -84,6 +84,7 @@ class OutputScores:
     coverage: NDArray[np.float64]
     fixed: bool = True
     recall: NDArray[np.bool_] | None = None
+    localized: NDArray[np.bool_] | None = None
 
 
 def _coverage_at(coverage: ScanCoverage | None, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -99,7 +100,8 @@ def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCover
     fix = metrics.first_fix_index(record.stamps, correct)
     counted = has_truth & (np.arange(correct.size) >= (fix if fix is not None else 0))
     return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
-                        _coverage_at(coverage, record.stamps), fixed=fix is not None)
+                        _coverage_at(coverage, record.stamps), fixed=fix is not None,
+                        localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool))
 
 
 def global_fix_scores(record: GlobalFixRecord, coverage: ScanCoverage | None) -> OutputScores:
@@ -145,9 +147,14 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
             "global_correct_rate_covered": rates["correct_rate_covered"],
             "map_coverage_median": median,
         }
+    all_correct = np.concatenate([r.correct for r in runs])
+    localized = np.concatenate([r.localized if r.localized is not None else np.zeros(r.correct.size, bool)
+                                for r in runs])
     return {
         "outputs": int(counted.sum()),
         "correct_rate": _rate(correct),
+        "localized_rate": _rate(localized),
+        "false_localized_rate": _rate(~all_correct[localized]),
         "fine_rate": _rate(fine),
         "outputs_covered": rates["outputs_covered"],
         "correct_rate_covered": rates["correct_rate_covered"],

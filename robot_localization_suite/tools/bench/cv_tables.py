@@ -22,6 +22,7 @@ _POOLED_REPLAY = (
     ("correct_rate_covered", f"correct rate, {COVERED}"),
     ("outputs_covered", "outputs covered"),
     ("map_coverage_median", "map coverage median"),
+    ("false_localized_rate", "false LOCALIZED rate"),
 )
 _POOLED_FIXES = (
     ("fixes", "fixes"),
@@ -36,6 +37,7 @@ _BLOCK_REPLAY = (
     ("correct_rate", "correct rate"),
     ("correct_rate_covered", f"correct rate, {COVERED}"),
     ("map_coverage_median", "map coverage median"),
+    ("false_localized_rate", "false LOCALIZED rate"),
     ("time_to_first_fix_s", "first fix [s]"),
     ("rmse_xy_m", "RMSE xy [m]"),
 )

@@ -52,6 +52,7 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
                     "kidnap_candidate_recovery_updates", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
             fields[key] = evaluation[key]
         series = {key: evaluation[key] for key in ("correct", "fine", "position_error_m", "heading_error_rad")}
+        fields.update(metrics.status_fields(record.statuses, evaluation["correct"]))
     else:
         fields.update(correct=None, fine=None, time_to_first_fix_s=None, kidnap_recovery_s=[],
                       kidnap_recovery_updates=[], kidnap_candidate_recovery_updates=None, correct_rate=None,

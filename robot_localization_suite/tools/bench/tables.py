@@ -45,6 +45,8 @@ _REPLAY_COLUMNS = (
     ("fine_rate", "fine rate"),
     ("correct_rate_covered", f"correct rate, coverage >= {metrics.COVERED_FRACTION}"),
     ("map_coverage_median", "map coverage median"),
+    ("localized_rate", "LOCALIZED rate"),
+    ("false_localized_rate", "false LOCALIZED rate"),
     ("time_to_first_fix_s", "first fix [s]"),
     ("kidnap_recovery_s", "kidnap recovery [s]"),
     ("kidnap_recovery_updates", "kidnap recovery [updates]"),
