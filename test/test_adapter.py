@@ -211,15 +211,22 @@ def test_same_map_from_topic_is_not_handed_over_twice_but_a_changed_one_is():
 def test_the_input_clock_refuses_the_future_steps_over_small_steps_back_and_restarts_after_a_jump() -> None:
     from robot_localization_suite.ros.adapter import InputClock
 
-    clock = InputClock(max_future_s=1.0, time_jump_reset_s=3.0)
+    now = [100.0]
+    clock = InputClock(max_future_s=1.0, time_jump_reset_s=3.0, clock=lambda: now[0])
     assert clock.admit("scan", 100.0) == "ok"
     assert clock.admit("odom", 100.5) == "ok"
-    assert clock.admit("scan", 102.0) == "future"  # 1.5 s ahead of the newest (100.5)
-    assert clock.newest == 100.5  # a refused stamp does not move the clock
-    assert clock.admit("scan", 99.0) == "older"  # 1 s back on its own stream: refused
-    assert clock.admit("scan", 96.0) == "reset"  # 4 s back: a new timeline
-    assert clock.admit("odom", 96.1) == "ok" and clock.newest == 96.1
+    assert clock.admit("scan", 102.0) == "future"  # 2 s ahead of the clock
+    assert clock.newest == 100.5  # a refused stamp does not move the node's time
+    now[0] = 103.0  # a sensor pause of 3 s is no attack: its next stamp is in the clock's present
+    assert clock.admit("scan", 103.0) == "ok"
+    assert clock.admit("scan", 102.5) == "older"  # 0.5 s back on its own stream: refused
+    assert clock.admit("scan", 99.0) == "reset"  # 4 s back: a new timeline
+    assert clock.admit("odom", 99.1) == "ok" and clock.newest == 99.1
     assert clock.admit("odom", float("nan")) == "future"
+    # Without a clock (a bare replay), a far-future stamp is taken, and the next real one restarts the timeline.
+    bare = InputClock()
+    assert bare.admit("scan", 10.0) == "ok" and bare.admit("scan", 2.0**31) == "ok"
+    assert bare.admit("scan", 11.0) == "reset"
 
 
 def test_an_initial_pose_with_an_unusable_covariance_gets_the_default_spread_and_a_warning() -> None:

@@ -96,6 +96,7 @@ class LocalizerNode(Node):
             max_candidates=self.node_settings.max_published_candidates,
             max_future_s=self.node_settings.max_future_s,
             time_jump_reset_s=self.node_settings.time_jump_reset_s,
+            clock=lambda: self.get_clock().now().nanoseconds * 1e-9,
         )
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "~/pose", RELIABLE_QOS)
         self.candidates_pub = self.create_publisher(PoseArray, "~/candidates", RELIABLE_QOS)

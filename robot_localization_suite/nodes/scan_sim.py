@@ -130,7 +130,8 @@ def _make_node(options: argparse.Namespace) -> Any:
                 raise SystemExit(2) from exc
             scenario = self.scenario = self.simulator.scenario
             epoch = self.get_clock().now().nanoseconds * 1e-9
-            self.messages = StepMessages(self.simulator, self.settings, epoch=epoch)
+            self.messages = StepMessages(self.simulator, self.settings, epoch=epoch,
+                                         time_scale=1.0 / self.settings.speed)
             self.map_pub = self.create_publisher(OccupancyGrid, "map", MAP_QOS)
             self.publishers_by_topic = {
                 "scan": self.create_publisher(LaserScan, "scan", SENSOR_QOS),

@@ -115,16 +115,23 @@ def _positive_definite(covariance: NDArray[np.float64]) -> bool:
 class InputClock:
     """The node's time as its inputs tell it, guarded against stamps that jump.
 
-    A stamp more than ``max_future_s`` ahead of the newest accepted one (of any stream) is refused
-    and does not move the clock: one message stamped in 2038 must not make every later real
-    message look old. A stamp more than ``time_jump_reset_s`` behind its own stream's last one
-    starts a new timeline (a bag looped, a simulator restarted), as ROS' time-jump handling does;
-    a smaller step back is refused. Verdicts: ``ok``, ``future``, ``older``, ``reset``.
+    With a ``clock`` (the node's ROS clock, or the log time of a replayed bag), a stamp more than
+    ``max_future_s`` ahead of it is refused and does not move the node's time: one message stamped
+    in 2038 must not make every later real message look old. A stamp more than
+    ``time_jump_reset_s`` behind its own stream's last one starts a new timeline (a bag looped, a
+    simulator restarted, or a future stamp got through without a clock), as ROS' time-jump handling
+    does; a smaller step back is refused. Verdicts: ``ok``, ``future``, ``older``, ``reset``.
     """
 
-    def __init__(self, max_future_s: float = 1.0, time_jump_reset_s: float = TIME_JUMP_RESET_S) -> None:
+    def __init__(
+        self,
+        max_future_s: float = 1.0,
+        time_jump_reset_s: float = TIME_JUMP_RESET_S,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
         self.max_future_s = float(max_future_s)
         self.time_jump_reset_s = float(time_jump_reset_s)
+        self.clock = clock
         self.newest: float | None = None
         self._last: dict[str, float] = {}
 
@@ -132,13 +139,13 @@ class InputClock:
         """The verdict on ``stamp`` [s] of ``stream``; ``ok`` and ``reset`` accept it."""
         if not math.isfinite(stamp):
             return "future"
+        if self.clock is not None and stamp > self.clock() + self.max_future_s:
+            return "future"
         last = self._last.get(stream)
         if last is not None and stamp < last - self.time_jump_reset_s:
             self._last = {stream: stamp}
             self.newest = stamp
             return "reset"
-        if self.newest is not None and stamp > self.newest + self.max_future_s:
-            return "future"
         if last is not None and stamp < last:
             return "older"
         self._last[stream] = stamp
@@ -157,7 +164,7 @@ class LocalizerAdapter:
         extras_builder: turns an estimate into method-specific messages, keyed by
             topic suffix (e.g. ``{"boxes": MarkerArray}``).
         max_candidates: cap on the poses put in the candidates message.
-        max_future_s, time_jump_reset_s: the :class:`InputClock`'s limits [s].
+        max_future_s, time_jump_reset_s, clock: the :class:`InputClock`'s limits [s] and "now" [s].
     """
 
     def __init__(
@@ -171,6 +178,7 @@ class LocalizerAdapter:
         max_candidates: int = 2000,
         max_future_s: float = 1.0,
         time_jump_reset_s: float = TIME_JUMP_RESET_S,
+        clock: Callable[[], float] | None = None,
     ) -> None:
         self.localizer = localizer
         # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
@@ -186,7 +194,7 @@ class LocalizerAdapter:
             # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
             localizer.set_laser_mount(self.mount)
         self._extras_builder = extras_builder
-        self.clock = InputClock(max_future_s, time_jump_reset_s)
+        self.clock = InputClock(max_future_s, time_jump_reset_s, clock)
         self._last_beam_count: int | None = None
         self.has_map = False
         self._current_map: Any = None
@@ -284,8 +292,9 @@ class LocalizerAdapter:
         """Whether an input stamped ``stamp`` is used (InputClock), with a throttled reason when not."""
         verdict = self.clock.admit(stream, stamp)
         if verdict == "future":
+            now = self.clock.clock() if self.clock.clock is not None else math.nan
             self.log("warn", f"{stream}_future", f"ignoring {stream} stamped {stamp:.3f} s: more than "
-                     f"{self.clock.max_future_s:g} s ahead of the newest input ({self.clock.newest:.3f} s)")
+                     f"{self.clock.max_future_s:g} s ahead of the node's clock ({now:.3f} s)")
         elif verdict == "older":
             self.log("warn", f"{stream}_time", f"ignoring {stream} stamped {stamp:.3f} s, older than the last one")
         elif verdict == "reset":

@@ -22,10 +22,14 @@ __all__ = ["StepMessages", "record"]
 class StepMessages:
     """Builds the ROS messages of a simulator step (shared by live mode and recording)."""
 
-    def __init__(self, simulator: Simulator, settings: ScanSimSettings, epoch: float = 0.0) -> None:
+    def __init__(self, simulator: Simulator, settings: ScanSimSettings, epoch: float = 0.0,
+                 time_scale: float = 1.0) -> None:
         self.simulator = simulator
         self.settings = settings
         self.epoch = epoch
+        # Live at speed s, stamps advance with the wall clock (time_scale 1/s): the robot moves s
+        # times faster, and every stamp stays consistent with the receiving nodes' clocks.
+        self.time_scale = float(time_scale)
         laser = simulator.scenario.laser
         self._scan_fields = {
             "angle_min": laser.angle_min,
@@ -36,7 +40,7 @@ class StepMessages:
         }
 
     def stamp(self, step_time: float) -> float:
-        return self.epoch + step_time
+        return self.epoch + step_time * self.time_scale
 
     def map_message(self) -> Any:
         msg = conversions.grid_map_to_msg(self.simulator.grid_map, self.epoch)

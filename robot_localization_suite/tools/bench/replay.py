@@ -150,7 +150,9 @@ def replay_localizer(
     prefix = f"[{reference.name}/{spec.name}]"
     sink = log_sink(prefix)
     timed = _TimedLocalizer(spec.factory())
-    adapter = LocalizerAdapter(timed, node_name=spec.name, log=sink, mount=spec.mount)
+    # "Now" for the adapter's clock check is the log time of the message being replayed (its receive time).
+    log_time = [float("inf")]
+    adapter = LocalizerAdapter(timed, node_name=spec.name, log=sink, mount=spec.mount, clock=lambda: log_time[0])
     if grid_map is not None and hasattr(timed, "set_map"):
         first_scan = prepare_scan(timed, reference, uses_camera=spec.uses_camera)
         start = time.perf_counter()
@@ -214,6 +216,7 @@ def replay_localizer(
                    disable=None)
 
     def on_message(item: BagMessage) -> None:
+        log_time[0] = item.stamp_ns * 1e-9
         if sample_rss and item.topic == sensor_topic:
             record.peak_rss_mb = max(record.peak_rss_mb or 0.0, rss_mb())
             if bar is not None:
