@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .core.filter.odometry_gate import TIME_JUMP_RESET_S
 from .core.ial.settings import IALSettings
 from .core.ima.settings import ImaTrackerSettings
 from .core.ir.settings import IRSettings
 from .core.mcl.settings import MclSettings
 from .core.pil.settings import PilSettings
-from .core.filter.odometry_gate import TIME_JUMP_RESET_S
 from .core.scan import LaserMount
 from .core.settings import Settings, from_params, read_params_file, setting
 
