@@ -12,6 +12,7 @@ method around its last pose, as nav2_amcl reinitialises its filter. The message 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -115,6 +116,11 @@ class LocalizerNode(LifecycleNode):
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         self.adapter: LocalizerAdapter | None = None
+        self.node_settings: NodeSettings = NodeSettings()
+        self.settings: Settings = plugin.settings()
+        self.tf_buffer = tf.TransformBuffer(self.throttled)
+        self._fresh_method = True
+        self._map_received = False
         self.active = False
         self.exit_requested = False
         self._entities: list[Any] = []  # subscriptions, services, timers of the configured node
@@ -269,6 +275,7 @@ class LocalizerNode(LifecycleNode):
         self.adapter.log = self.throttled
         self._fresh_method = True
         self._mount_wait_since: float | None = None
+        self._waiting: tuple[float, Any, Callable[[Any], AdapterOutput | None]] | None = None
         if previous is not None:
             if previous.current_map is not None:
                 self.adapter.set_map(previous.current_map)
@@ -379,18 +386,44 @@ class LocalizerNode(LifecycleNode):
             if mount is None:
                 return
             self.adapter.set_mount(mount)
-        self.publish(self.adapter.on_scan_msg(msg), stamp_to_seconds(msg.header.stamp))
+        self._when_odometry_reaches(msg, self.adapter.on_scan_msg)
 
     def _on_image(self, msg: Image) -> None:
         if not self._accepting("sensor", "image"):
             return
         assert self.adapter is not None
-        self.publish(self.adapter.on_image_msg(msg), stamp_to_seconds(msg.header.stamp))
+        self._when_odometry_reaches(msg, self.adapter.on_image_msg)
+
+    def _when_odometry_reaches(self, msg: Any, update: Callable[[Any], AdapterOutput | None]) -> None:
+        """Update with ``msg`` once odometry reaches its stamp, as nav2_amcl's tf message filter waits for it.
+
+        Scans are best effort and odometry reliable: a scan often arrives before the odometry of its
+        own instant. It waits (the newest one only) for that odometry, so that neither the update nor
+        ``map -> odom`` uses odometry of an earlier instant. Without any odometry it goes at once.
+        """
+        assert self.adapter is not None
+        stamp = stamp_to_seconds(msg.header.stamp)
+        if self.adapter.last_odometry_stamp < stamp and self.adapter.last_odometry_stamp > -math.inf:
+            if self._waiting is not None:
+                self.throttled("warn", "odometry_behind", "odometry does not reach the sensor's stamps: "
+                               "dropping inputs that wait for it (is odometry late or stopped?)")
+            self._waiting = (stamp, msg, update)
+            return
+        self.publish(update(msg), stamp)
+
+    def _odometry_arrived(self) -> None:
+        """Run the input that waited for this odometry."""
+        if self._waiting is not None and self.adapter is not None:
+            stamp, msg, update = self._waiting
+            if self.adapter.last_odometry_stamp >= stamp:
+                self._waiting = None
+                self.publish(update(msg), stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
         if self._accepting("odometry", "odometry"):
             assert self.adapter is not None
             self.adapter.on_odom_msg(msg)
+            self._odometry_arrived()
 
     def _on_tf(self, msg: Any) -> None:
         """Odometry from /tf (odom_source tf): ``odom -> base`` at the stamp of each transform on the way."""
@@ -407,6 +440,7 @@ class LocalizerNode(LifecycleNode):
                 pose = self.tf_buffer.lookup(ns.odom_frame_id, ns.base_frame_id, transform.stamp)
                 if pose is not None:
                     self.adapter.on_odometry(transform.stamp, pose)
+        self._odometry_arrived()
 
     def _on_tf_static(self, msg: Any) -> None:
         self.tf_buffer.add_message(msg, static=True)
@@ -470,8 +504,9 @@ class LocalizerNode(LifecycleNode):
         return response
 
     def _on_reinitialize(self, request: Empty.Request, response: Empty.Response) -> Empty.Response:
-        if self.adapter is not None:
-            guarded(self, lambda _: self.adapter.reinitialize(), "reinitialize")(None)
+        adapter = self.adapter
+        if adapter is not None:
+            guarded(self, lambda _: adapter.reinitialize(), "reinitialize")(None)
         return response
 
     def _on_nomotion(self, request: Empty.Request, response: Empty.Response) -> Empty.Response:
@@ -492,9 +527,11 @@ class LocalizerNode(LifecycleNode):
             if silent >= timeout and now - self._warned[kind] >= timeout:
                 self._warned[kind] = now
                 since = "since activation" if self._last_input[kind] == self._activated_at else "since the last one"
+                others = [info for info in self.get_publishers_info_by_topic(topic)
+                          if (info.node_name, info.node_namespace) != (self.get_name(), self.get_namespace())]
                 self.get_logger().warning(
                     f"no {what} received on {topic} for {silent:.1f} s {since} "
-                    f"({self.count_publishers(topic)} publisher(s)): nothing is localized without it")
+                    f"({len(others)} publisher(s)): nothing is localized without it")
         adapter = self.adapter
         if (adapter is not None and not self.plugin.uses_camera and not adapter.has_map
                 and now - self._activated_at >= timeout and now - self._warned["map"] >= timeout):

@@ -205,7 +205,7 @@ class LocalizerAdapter:
         self._info = log
         self.global_frame = global_frame
         self.mount = LaserMount()
-        self._mount_inv = np.zeros(3)
+        self._mount_inv: NDArray[np.float64] = np.zeros(3)
         # Odometry held while the mount is not known yet (defer_mount); None once it is.
         self._held_odometry: list[tuple[float, NDArray[np.float64]]] | None = [] if defer_mount else None
         self._extras_builder = extras_builder
@@ -223,6 +223,11 @@ class LocalizerAdapter:
     def current_map(self) -> Any:
         """The map in use (a ``GridMap``), or None."""
         return self._current_map
+
+    @property
+    def last_odometry_stamp(self) -> float:
+        """Stamp [s] of the newest odometry used (-inf before any)."""
+        return self._last_odometry_stamp
 
     @property
     def mount_known(self) -> bool:
@@ -300,8 +305,9 @@ class LocalizerAdapter:
                      f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is not positive definite: "
                      f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
                      f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
-            covariance = None
-        self.set_initial_pose(pose, covariance)
+            self.set_initial_pose(pose)
+        else:
+            self.set_initial_pose(pose, covariance)
         return True
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:

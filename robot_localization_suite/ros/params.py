@@ -56,7 +56,8 @@ def declare_settings(node: Node, *classes: type[Settings]) -> list[str]:
     Raises:
         SettingsError: an override of the wrong type or out of range, naming the parameter and the value.
     """
-    overrides = {name: param.value for name, param in node.get_parameters_by_prefix("").items()
+    declared: dict[str, Any] = dict(node.get_parameters_by_prefix(""))  # name -> rclpy Parameter
+    overrides = {name: param.value for name, param in declared.items()
                  if name not in _ROS_OWN and not name.startswith("qos_overrides.")}
     for cls in classes:
         for param in parameters(cls):

@@ -176,7 +176,7 @@ class TransformBuffer:
         frames = self.chain(parent, child)
         if frames is None:
             return None
-        pose = np.zeros(3)
+        pose: NDArray[np.float64] = np.zeros(3)
         for frame in frames[:-1]:
             link = self._static.get(frame)
             if link is None:
