@@ -217,6 +217,8 @@ def test_the_node_publishes_the_place_and_survives_bad_images(repo_root: Path) -
         # an unsupported encoding is skipped with a warning; an rgb8 image is converted and used
         # stamped just after the bag's images (an input far ahead of the newest is refused as from the future)
         after = conversions.stamp_to_seconds(item.msg.header.stamp)
+        # with its odometry: the node updates once odometry reaches an input's stamp
+        node.adapter.on_odom_msg(conversions.odometry_to_msg(after + 0.1, np.array([5.0, 5.0, 1.0]), frame_id="odom"))
         bad = conversions.image_to_msg(after + 0.1, "camera", np.zeros((120, 160), np.uint8))
         bad.encoding = "16UC1"
         node._on_image(bad)

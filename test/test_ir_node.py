@@ -99,6 +99,7 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
         node._on_reinitialize(Empty.Request(), Empty.Response())
         assert not localizer.initialized
         # the next scan (stamped within max_future_s of the last: 200 s would now be refused as from the future)
+        node.adapter.on_odom_msg(conversions.odometry_to_msg(0.1 * len(truth), odom, frame_id="odom"))
         node._on_scan(_scan_msg(scan_at(world, truth[-1], stamp=0.1 * len(truth))))
         assert published[-1].estimate.details["phase"] == "initialization"
     finally:
