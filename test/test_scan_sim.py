@@ -313,7 +313,9 @@ def test_record_stopped_by_a_signal_finishes_its_bag_and_exits_0(tmp_path: Path,
     topics = [m.topic for m in reading]
     assert reading.recovery is None and (bag / "metadata.yaml").is_file()
     assert len(topics) == written > 4 and topics[0] == "/map"
-    assert topics.count("/odom") == topics.count("/ground_truth") == topics.count("/scan") == (written - 1) // 3
+    # /map and /tf_static once, then odom, its /tf, ground truth and the scan of each step
+    assert topics.count("/odom") == topics.count("/tf") == topics.count("/ground_truth") == topics.count("/scan") \
+        == (written - 2) // 4
 
 
 def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
