@@ -9,6 +9,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
+# tf2_msgs and nav2_msgs built from interfaces/ into the venv (no wheels on PyPI; interfaces/README.md).
+INTERFACES := $(VENV)/.interfaces-stamp
+INTERFACE_FILES := $(shell find interfaces -type f)
 DEMO_ARGS ?=
 PYTEST_ARGS ?=
 BENCH_MAX_SECONDS ?= 300
@@ -29,16 +32,26 @@ HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[ros,test]"
+	$(PY) -m pip install --quiet -e ".[ros,test,interfaces]"
 	touch $(STAMP)
 
-setup: $(STAMP)
+# Once (again when interfaces/ or the install changes): colcon with the ament_cmake/rosidl wheels,
+# installed into the venv itself, whose lib/ the rclpy wheels already put on the library path.
+$(INTERFACES): $(STAMP) $(INTERFACE_FILES)
+	AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) CMAKE_PREFIX_PATH=$(CURDIR)/$(VENV) $(PY) -m colcon \
+		--log-base $(VENV)/interfaces/log build --base-paths interfaces/tf2_msgs interfaces/nav2_msgs \
+		--build-base $(VENV)/interfaces/build --install-base $(VENV) --merge-install \
+		--event-handlers console_direct- \
+		--cmake-args -DCMAKE_PROJECT_INCLUDE=$(CURDIR)/interfaces/wheel_includes.cmake -DBUILD_TESTING=OFF
+	touch $(INTERFACES)
 
-demo: $(STAMP)
+setup: $(STAMP) $(INTERFACES)
+
+demo: $(STAMP) $(INTERFACES)
 	$(PY) -m robot_localization_suite.launch.demo $(DEMO_ARGS)
 	$(PY) -m robot_localization_suite.launch.demo --scenario lab_camera --localizers ima_topo_localizer $(DEMO_ARGS)
 
-test: $(STAMP)
+test: $(STAMP) $(INTERFACES)
 	$(PY) -m pytest -q test $(PYTEST_ARGS)
 
 # Every localizer over every bag in bags/, in global then tracking mode, plus single-scan
@@ -46,7 +59,7 @@ test: $(STAMP)
 # With the real logs at hand, then the same over the 5-block splits of intel, fr101 and orebro
 # (each block on its honest map and on the whole-log map) into results/cv/, its tables
 # appended to results/summary.md.
-bench: $(STAMP) $(if $(HAVE_CARMEN),$(CV_INDEXES))
+bench: $(STAMP) $(INTERFACES) $(if $(HAVE_CARMEN),$(CV_INDEXES))
 	@$(if $(HAVE_CARMEN),true,echo "bench: $(CARMEN_DIR) is absent: skipping the cross-validation runs (honest maps)")
 	$(PY) -m robot_localization_suite.tools.bench --all --with-tracking --with-global-fixes --out results \
 		--max-seconds $(BENCH_MAX_SECONDS) $(if $(HAVE_CARMEN),--cv $(CV_INDEXES)) $(BENCH_ARGS)

@@ -53,6 +53,24 @@ setup(
             "ros-jazzy-common-interfaces==5.3.6",
             "ros-jazzy-rmw-fastrtps-cpp==8.4.3",
         ],
+        # What `make` needs to build interfaces/ (tf2_msgs, nav2_msgs: no wheels on PyPI) with colcon.
+        "interfaces": [
+            "ros-jazzy-ament-cmake==2.5.4",
+            "ros-jazzy-ament-package==0.16.4",
+            "ros-jazzy-ament-cmake-include-directories==2.5.4",
+            "ros-jazzy-ament-cmake-ros==0.12.0",
+            "ros-jazzy-ament-cmake-gmock==2.5.4",
+            "ros-jazzy-ament-cmake-gtest==2.5.4",
+            "ros-jazzy-ament-cmake-pytest==2.5.4",
+            "ros-jazzy-gmock-vendor==1.14.9000",
+            "ros-jazzy-gtest-vendor==1.14.9000",
+            "ros-jazzy-domain-coordinator==0.12.0",
+            "ros-jazzy-python-cmake-module==0.11.1",
+            "ros-jazzy-rosidl-core-generators==0.2.0",
+            "colcon-core==0.21.3",
+            "colcon-ros==0.5.0",
+            "colcon-cmake==0.2.30",
+        ],
         # Only for tools/ial_benchmark.py --codac: the measured comparison behind core/ial.py's choice of numba.
         "compare": ["codac==2.1.2"],
         "test": [
@@ -64,6 +82,9 @@ setup(
             "colcon-core==0.21.3",
             "colcon-ros==0.5.0",
             "colcon-python-setup-py==0.2.9",
+            # The README's `colcon build --packages-select ...` and `source install/setup.bash`.
+            "colcon-package-selection==0.2.10",
+            "colcon-bash==0.5.0",
         ],
     },
     zip_safe=False,

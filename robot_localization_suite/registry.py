@@ -29,6 +29,7 @@ from .core.settings import Settings, from_params, read_params_file, setting
 __all__ = [
     "SensorKind",
     "NodeSettings",
+    "ODOM_SOURCES",
     "LocalizerPlugin",
     "PLUGINS",
     "LOCALIZER_NAMES",
@@ -44,15 +45,49 @@ class SensorKind(enum.Enum):
     CAMERA = "camera"
 
 
+_BIG = 1e6
+ODOM_SOURCES = ("topic", "tf")
+
+
 @dataclass(frozen=True)
 class NodeSettings(Settings):
-    """Parameters every localizer node has besides its method's own."""
+    """Parameters every localizer node has besides its method's own (nav2_amcl's names where nav2 has them).
 
-    map_yaml: str = setting("", "nav2 map_server YAML loaded at start; empty: wait for the map topic", read_only=True)
-    laser_x: float = setting(0.0, "laser position in the base frame, x", unit="m", low=-100.0, high=100.0)
-    laser_y: float = setting(0.0, "laser position in the base frame, y", unit="m", low=-100.0, high=100.0)
-    laser_yaw: float = setting(0.0, "laser heading in the base frame", unit="rad", low=-3.1416, high=3.1416)
-    max_published_candidates: int = setting(2000, "cap on the poses in ~/candidates", low=0, high=1_000_000)
+    Every one can change at run time (``ros2 param set``) except the ``read_only`` ones; a change of
+    the laser mount, like a change of a method parameter, rebuilds the method around its last pose.
+    """
+
+    map_yaml: str = setting("", "nav2 map_server YAML loaded at configure; empty: wait for the map topic", read_only=True)
+    first_map_only: bool = setting(False, "use the first map received and ignore later ones (nav2)")
+    laser_x: float = setting(0.0, "laser position in the base frame, x, when /tf_static has no base -> laser transform",
+                             unit="m", low=-100.0, high=100.0)
+    laser_y: float = setting(0.0, "laser position in the base frame, y (fallback as laser_x)", unit="m",
+                             low=-100.0, high=100.0)
+    laser_yaw: float = setting(0.0, "laser heading in the base frame (fallback as laser_x)", unit="rad",
+                               low=-3.1416, high=3.1416)
+    tf_broadcast: bool = setting(True, "publish map -> odom on /tf (nav2)")
+    global_frame_id: str = setting("map", "frame of the map, of the estimates and of accepted initial poses (nav2)")
+    odom_frame_id: str = setting("odom", "odometry frame (nav2)")
+    base_frame_id: str = setting("base_footprint", "robot base frame (nav2)")
+    transform_tolerance: float = setting(
+        1.0, "map -> odom is stamped this far after its scan (valid until then), and /tf input older than "
+        "this behind its frame's newest is dropped (nav2)", unit="s", low=0.0, high=3600.0)
+    odom_source: str = setting("topic", "odometry from the odom topic (nav_msgs/Odometry) or from /tf "
+                               "(odom_frame_id -> base_frame_id, as nav2)", choices=ODOM_SOURCES, read_only=True)
+    scan_timeout: float = setting(5.0, "once active, warn when no scan (image) or odometry has arrived for this long",
+                                  unit="s", low=0.0, low_open=True, high=3600.0)
+    set_initial_pose: bool = setting(False, "on activation, start around initial_pose.* (nav2)")
+    initial_pose_x: float = setting(0.0, "initial pose x in global_frame_id (nav2)", unit="m", low=-_BIG, high=_BIG,
+                                    ros_name="initial_pose.x")
+    initial_pose_y: float = setting(0.0, "initial pose y in global_frame_id (nav2)", unit="m", low=-_BIG, high=_BIG,
+                                    ros_name="initial_pose.y")
+    initial_pose_yaw: float = setting(0.0, "initial pose heading in global_frame_id (nav2)", unit="rad",
+                                      low=-7.0, high=7.0, ros_name="initial_pose.yaw")
+    always_reset_initial_pose: bool = setting(
+        False, "after a reset (cleanup, configure, activate) wait for a new initial pose (or initial_pose.*) instead "
+        "of starting from the last known pose (nav2)")
+    max_published_candidates: int = setting(2000, "cap on the poses in ~/candidates and ~/particle_cloud",
+                                            low=0, high=1_000_000)
     max_future_s: float = setting(1.0, "an input stamped more than this ahead of the newest one is dropped and does not "
                                   "move the node's time", unit="s", low=0.0, high=3600.0)
     time_jump_reset_s: float = setting(TIME_JUMP_RESET_S, "an input stamped more than this before its stream's last "
@@ -61,7 +96,12 @@ class NodeSettings(Settings):
 
     @property
     def mount(self) -> LaserMount:
+        """The laser mount of the parameters (the fallback when /tf_static has none)."""
         return LaserMount(self.laser_x, self.laser_y, self.laser_yaw)
+
+    @property
+    def initial_pose(self) -> tuple[float, float, float]:
+        return self.initial_pose_x, self.initial_pose_y, self.initial_pose_yaw
 
 
 @dataclass(frozen=True)

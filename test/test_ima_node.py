@@ -194,11 +194,13 @@ def test_the_node_publishes_the_place_and_survives_bad_images(repo_root: Path) -
 
     rclpy.init(args=["ima_topo_localizer", "--ros-args", "-p", "zoom:=1.0"])
     node = LocalizerNode(registry.plugin("ima_topo_localizer"), extras=IMA_PLACE)
+    node.trigger_configure()
+    node.trigger_activate()
     published, warnings = [], []
     try:
         assert node.localizer.settings.ima.zoom == 1.0
         assert set(node.extra_pubs) == {"place"}
-        node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]
+        node.publish = lambda output, *_: published.append(output) if output is not None else None  # type: ignore[method-assign]
         node.adapter.log._sink = lambda level, text: warnings.append((level, text))
         messages = read_bag(repo_root / "bags" / "lab_camera", ["/odom", "/camera/image_raw"])
         images = 0
@@ -213,13 +215,17 @@ def test_the_node_publishes_the_place_and_survives_bad_images(repo_root: Path) -
         assert published and isinstance(published[0].extras["place"], String)
         assert published[0].extras["place"].data == "LAB_SW"
         # an unsupported encoding is skipped with a warning; an rgb8 image is converted and used
-        bad = conversions.image_to_msg(99.0, "camera", np.zeros((120, 160), np.uint8))
+        # stamped just after the bag's images (an input far ahead of the newest is refused as from the future)
+        after = conversions.stamp_to_seconds(item.msg.header.stamp)
+        # with its odometry: the node updates once odometry reaches an input's stamp
+        node.adapter.on_odom_msg(conversions.odometry_to_msg(after + 0.1, np.array([5.0, 5.0, 1.0]), frame_id="odom"))
+        bad = conversions.image_to_msg(after + 0.1, "camera", np.zeros((120, 160), np.uint8))
         bad.encoding = "16UC1"
         node._on_image(bad)
         assert any(level == "warn" and "16UC1" in text for level, text in warnings)
         count = len(published)
-        node.adapter.on_odom_msg(conversions.odometry_to_msg(100.0, np.array([5.0, 5.0, 1.0]), frame_id="odom"))
-        colour = conversions.image_to_msg(100.0, "camera", np.zeros((120, 160, 3), np.uint8))
+        node.adapter.on_odom_msg(conversions.odometry_to_msg(after + 0.2, np.array([5.0, 5.0, 1.0]), frame_id="odom"))
+        colour = conversions.image_to_msg(after + 0.2, "camera", np.zeros((120, 160, 3), np.uint8))
         node._on_image(colour)
         assert len(published) == count + 1 and published[-1].extras["place"].data  # black: a supposed place
         assert published[-1].estimate.details["kind"] == "supposed"

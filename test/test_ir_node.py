@@ -58,13 +58,15 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
         args += ["-p", f"{name}:={value}"]
     rclpy.init(args=args)
     node = LocalizerNode(registry.plugin("ir_initializer"))
+    node.trigger_configure()
+    node.trigger_activate()
     published = []
     try:
         for param in parameters(IRSettings):
             assert node.has_parameter(param.name), param.name
         localizer = node.localizer
         assert localizer.settings.grid_resolution == 0.1 and localizer.settings.cache_dir == str(tmp_path)
-        node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]
+        node.publish = lambda output, *_: published.append(output) if output is not None else None  # type: ignore[method-assign]
         node.adapter.on_map_msg(conversions.grid_map_to_msg(world, 0.0))
         rng = np.random.default_rng(3)
         for k, pose in enumerate(truth):
@@ -96,7 +98,9 @@ def test_the_node_initialises_tracks_and_serves(tmp_path: Path) -> None:
         assert localizer.odometry.forced
         node._on_reinitialize(Empty.Request(), Empty.Response())
         assert not localizer.initialized
-        node._on_scan(_scan_msg(scan_at(world, truth[-1], stamp=200.0)))
+        # the next scan (stamped within max_future_s of the last: 200 s would now be refused as from the future)
+        node.adapter.on_odom_msg(conversions.odometry_to_msg(0.1 * len(truth), odom, frame_id="odom"))
+        node._on_scan(_scan_msg(scan_at(world, truth[-1], stamp=0.1 * len(truth))))
         assert published[-1].estimate.details["phase"] == "initialization"
     finally:
         node.destroy_node()

@@ -36,6 +36,8 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
     run = drive(office, steps=80, seed=2)
     rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=3000", "-p", "min_particles:=200"])
     node = LocalizerNode(registry.plugin("mcl_baseline"))
+    node.trigger_configure()
+    node.trigger_activate()
     published = []
     try:
         for param in parameters(MclSettings):
@@ -43,7 +45,7 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
         assert node.describe_parameter("sigma_hit").floating_point_range[0].to_value == 100.0
         localizer = node.localizer
         assert localizer.settings.max_particles == 3000
-        node.publish = lambda output: published.append(output) if output is not None else None  # type: ignore[method-assign]
+        node.publish = lambda output, *_: published.append(output) if output is not None else None  # type: ignore[method-assign]
         node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
         node.adapter.on_initial_pose_msg(
             conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2, 0.05**2, 0.05**2]))
@@ -176,6 +178,8 @@ def test_the_cores_python_log_reaches_the_nodes_ros_log() -> None:
 
     rclpy.init(args=["mcl_baseline"])
     node = LocalizerNode(registry.plugin("mcl_baseline"))
+    node.trigger_configure()
+    node.trigger_activate()
     seen: list[tuple[str, str]] = []
     try:
         node._log_handler._sink = lambda level, text: seen.append((level, text))

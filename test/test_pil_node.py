@@ -98,6 +98,8 @@ def test_the_node_declares_every_parameter_and_builds_pil(tmp_path: Path) -> Non
     rclpy.init(args=args)
     try:
         node = LocalizerNode(registry.plugin("pil_localizer"))
+        node.trigger_configure()
+        node.trigger_activate()
         try:
             assert isinstance(node.localizer, PilLocalizer)
             assert node.localizer.settings.field_of_view == pytest.approx(math.radians(240.0))

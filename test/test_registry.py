@@ -97,14 +97,17 @@ def test_a_nav2_amcl_section_carries_over_and_lists_what_is_not_used() -> None:
     settings = from_params(MclSettings, nav2)
     assert settings.alpha1 == 0.2 and settings.max_particles == 2000 and settings.omnidirectional
     assert settings.update_min_d == 1.0 and isinstance(settings.update_min_d, float)
-    assert (settings.initial_pose_x, settings.initial_pose_y, settings.initial_pose_yaw) == (1.5, -2.0, 0.5)
-    assert unknown_params(MclSettings, nav2) == ["base_frame_id", "do_beamskip", "initial_pose.z"]
+    # the frames and the initial pose are every localizer node's (registry.NodeSettings)
+    node = from_params(registry.NodeSettings, nav2)
+    assert node.set_initial_pose and node.initial_pose == (1.5, -2.0, 0.5) and node.base_frame_id == "base_footprint"
+    not_used = set(unknown_params(MclSettings, nav2)) & set(unknown_params(registry.NodeSettings, nav2))
+    assert sorted(not_used) == ["do_beamskip", "initial_pose.z"]
     with pytest.raises(SettingsError, match="parameter laser_model_type must be one of likelihood_field, beam"):
         from_params(MclSettings, {"laser_model_type": "likelihood_field_prob"})
     with pytest.raises(SettingsError, match="parameter max_particles must be an integer, got 2.5"):
         from_params(MclSettings, {"max_particles": 2.5})
     with pytest.raises(SettingsError, match="parameter set_initial_pose must be true or false"):
-        from_params(MclSettings, {"set_initial_pose": 1})
+        from_params(registry.NodeSettings, {"set_initial_pose": 1})
 
 
 def test_degrees_in_ros_radians_inside_declared_once() -> None:
@@ -160,7 +163,7 @@ def test_a_params_file_merges_wildcard_then_own_section_and_refuses_a_foreign_on
     with pytest.raises(SettingsError, match="no section for node 'mcl_baseline'"):
         read_params_file(foreign, "mcl_baseline")
     node, settings = registry.plugin("mcl_baseline").load_settings({"min_particles": 100}, params_file=path)
-    assert settings.max_beams == 40 and settings.min_particles == 100 and settings.initial_pose_x == 2.0
+    assert settings.max_beams == 40 and settings.min_particles == 100 and node.initial_pose_x == 2.0
 
 
 def test_an_unknown_localizer_is_named_with_the_known_ones() -> None:

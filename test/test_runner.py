@@ -262,3 +262,55 @@ def test_demo_runs_the_simulator_and_prints_the_summary() -> None:
     poses = int(re.search(r"ground truth: (\d+) poses", text).group(1))
     assert poses >= 20
     assert re.search(r"scan_sim stopped \((exit code 0|killed by SIGINT)\)", text), text
+
+
+def localizer_node(**parameters) -> dict:  # noqa: ANN003
+    return {
+        "executable": "mcl_baseline",
+        "params_file": str(ROOT / "config" / "mcl_baseline.yaml"),
+        "parameters": {"map_yaml": str(ROOT / "config" / "maps" / "office.yaml"), "max_particles": 2000,
+                       **parameters},
+    }
+
+
+def test_autostart_configures_then_activates_the_localizers_and_a_failure_stops_the_run(tmp_path: Path) -> None:
+    runfile = tmp_path / "run.yaml"
+    runfile.write_text(yaml.safe_dump({"nodes": [sim_node("sim"), localizer_node()]}))
+    process, output = start_rls_run(runfile)
+    try:
+        output.wait_for(r"^\[rls_run\] mcl_baseline: configure done in [\d.]+ s", 120)
+        output.wait_for(r"^\[rls_run\] mcl_baseline: activate done", 30)
+        output.wait_for(r"^\[rls_run\] active: mcl_baseline", 10)
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+    output.close()
+    # a localizer that cannot configure (no such map) stops the run: exit code 1
+    runfile.write_text(yaml.safe_dump({"nodes": [localizer_node(map_yaml=str(tmp_path / "missing.yaml"))]}))
+    process, output = start_rls_run(runfile)
+    try:
+        assert process.wait(timeout=120) == 1, output.text()
+    finally:
+        if process.poll() is None:
+            process.kill()
+    output.close()
+    text = output.text()
+    assert re.search(r"\[mcl_baseline\] .*configure failed: .*missing\.yaml", text), text
+    assert "mcl_baseline: configure FAILED" in text and "a node did not come up: stopping the run" in text
+
+
+def test_without_autostart_the_localizers_wait_for_another_manager(tmp_path: Path) -> None:
+    runfile = tmp_path / "run.yaml"
+    runfile.write_text(yaml.safe_dump({"autostart": False, "nodes": [localizer_node()]}))
+    process, output = start_rls_run(runfile, "--duration", "8")
+    try:
+        assert process.wait(timeout=60) == 0
+    finally:
+        if process.poll() is None:
+            process.kill()
+    output.close()
+    text = output.text()
+    assert "mcl_baseline unconfigured: waiting for the configure transition" in text
+    assert "configure done" not in text and "configured in" not in text

@@ -244,8 +244,8 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(
 
     messages = list(read_bag(bag))
     expected_steps = list(Simulator(load_scenario(scenario_path), seed=5).run())
-    per_step = ["/odom", "/ground_truth", "/scan"]
-    expected_topics = ["/map"]
+    per_step = ["/odom", "/tf", "/ground_truth", "/scan"]
+    expected_topics = ["/map", "/tf_static"]
     for step in expected_steps:
         expected_topics += per_step + (["/camera/image_raw"] if step.image is not None else [])
     assert [m.topic for m in messages] == expected_topics
@@ -255,10 +255,17 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(
     assert np.array_equal(
         np.asarray(grid.data, dtype=np.int8).reshape(80, 120), load_scenario(scenario_path).grid_map.data
     )
-    stream = iter(messages[1:])
+    (mount,) = messages[1].msg.transforms  # the scenario's laser mount, once
+    assert (mount.header.frame_id, mount.child_frame_id) == ("base_link", "laser")
+    stream = iter(messages[2:])
     for step in expected_steps:
         stamp_ns = int(round(step.time * 1e9))
-        odom, truth, scan = next(stream), next(stream), next(stream)
+        odom, odom_tf, truth, scan = next(stream), next(stream), next(stream), next(stream)
+        (transform,) = odom_tf.msg.transforms
+        assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
+        assert odom_tf.stamp_ns == stamp_ns
+        assert transform.transform.translation.x == odom.msg.pose.pose.position.x
+        assert transform.transform.rotation.z == odom.msg.pose.pose.orientation.z
         for item, pose in ((odom, step.odom_pose), (truth, step.true_pose)):
             assert item.stamp_ns == stamp_ns
             p = item.msg.pose.pose
@@ -306,7 +313,9 @@ def test_record_stopped_by_a_signal_finishes_its_bag_and_exits_0(tmp_path: Path,
     topics = [m.topic for m in reading]
     assert reading.recovery is None and (bag / "metadata.yaml").is_file()
     assert len(topics) == written > 4 and topics[0] == "/map"
-    assert topics.count("/odom") == topics.count("/ground_truth") == topics.count("/scan") == (written - 1) // 3
+    # /map and /tf_static once, then odom, its /tf, ground truth and the scan of each step
+    assert topics.count("/odom") == topics.count("/tf") == topics.count("/ground_truth") == topics.count("/scan") \
+        == (written - 2) // 4
 
 
 def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

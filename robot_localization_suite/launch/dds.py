@@ -23,6 +23,9 @@ LOOPBACK_PROFILE_XML = """<?xml version="1.0" encoding="UTF-8" ?>
     <transport_descriptor>
       <transport_id>loopback_udp</transport_id>
       <type>UDPv4</type>
+      <!-- Announce to 32 participants' ports, not Fast DDS's default 4: with more than 4 participants
+           on the machine (a demo, a test run) two of the later ones would never discover each other. -->
+      <maxInitialPeersRange>32</maxInitialPeersRange>
       <interfaceWhiteList>
         <address>127.0.0.1</address>
       </interfaceWhiteList>

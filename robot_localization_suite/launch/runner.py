@@ -14,8 +14,13 @@ does the part of their job this package needs:
   which and with what code): SIGINT first (rclpy shuts down cleanly), then SIGTERM,
   then SIGKILL, each after a timeout.
 
+* the localizers are lifecycle nodes: with ``autostart: true`` (the default, as nav2's lifecycle
+  manager has it) the runner configures, then activates them through their ``lifecycle_msgs``
+  services (:mod:`.lifecycle`); with ``autostart: false`` it leaves them unconfigured for another
+  manager.
+
 A runfile is YAML: either a list of nodes or a mapping with ``nodes`` and optional
-``domain_id``. Each node takes the fields of :class:`NodeSpec`. The substitution
+``domain_id`` and ``autostart``. Each node takes the fields of :class:`NodeSpec`. The substitution
 ``$(find-pkg-share robot_localization_suite)`` (as in launch files) names the package's
 share directory: the source tree when run from a checkout, ``share/robot_localization_suite``
 once installed with colcon. Example: ``config/runs/office_mcl.yaml``.
@@ -188,6 +193,7 @@ def node_spec_from_dict(entry: Any, index: int) -> NodeSpec:
 class Runfile:
     nodes: list[NodeSpec]
     domain_id: int | None = None
+    autostart: bool = True
 
 
 def load_runfile(path: str | os.PathLike[str]) -> Runfile:
@@ -199,18 +205,22 @@ def load_runfile(path: str | os.PathLike[str]) -> Runfile:
         content = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise RunError(f"runfile {str(path)!r} is not valid YAML: {exc}") from exc
-    domain_id = None
+    domain_id, autostart = None, True
     if isinstance(content, dict):
-        unknown = set(content) - {"nodes", "domain_id"}
+        unknown = set(content) - {"nodes", "domain_id", "autostart"}
         if unknown:
-            raise RunError(f"runfile {str(path)!r}: unknown field(s) {sorted(unknown)!r}; known: ['domain_id', 'nodes']")
+            raise RunError(f"runfile {str(path)!r}: unknown field(s) {sorted(unknown)!r}; "
+                           "known: ['autostart', 'domain_id', 'nodes']")
         domain_id = content.get("domain_id")
         if domain_id is not None and (not isinstance(domain_id, int) or not 0 <= domain_id <= 232):
             raise RunError(f"runfile {str(path)!r}: domain_id must be an integer in 0..232, got {domain_id!r}")
+        autostart = content.get("autostart", True)
+        if not isinstance(autostart, bool):
+            raise RunError(f"runfile {str(path)!r}: autostart must be true or false, got {autostart!r}")
         content = content.get("nodes")
     if not isinstance(content, list) or not content:
         raise RunError(f"runfile {str(path)!r} must list at least one node, got {content!r}")
-    return Runfile([node_spec_from_dict(entry, i) for i, entry in enumerate(content)], domain_id)
+    return Runfile([node_spec_from_dict(entry, i) for i, entry in enumerate(content)], domain_id, autostart)
 
 
 _OUTPUT_LOCK = threading.Lock()
@@ -278,7 +288,8 @@ class RunResult:
 
     Attributes:
         reason: ``"signal"`` (Ctrl-C / SIGTERM), ``"duration"``, ``"stopped"`` (the caller asked),
-            or ``"exited"`` (a node exited by itself: ``first_exit`` says which).
+            ``"exited"`` (a node exited by itself: ``first_exit`` says which), or ``"lifecycle"``
+            (autostart: a node did not configure or activate).
         first_exit: ``(name, exit code)`` of the node that ended the run, if one did.
         exit_codes: every node's exit code (negative: killed by that signal).
         escalated: nodes that needed SIGTERM or SIGKILL to stop.
@@ -292,7 +303,8 @@ class RunResult:
     @property
     def clean(self) -> bool:
         """Every node stopped on SIGINT (or exited by itself) with status 0 or by SIGINT."""
-        return not self.escalated and all(code in (0, -signal.SIGINT) for code in self.exit_codes.values())
+        return self.reason != "lifecycle" and not self.escalated and all(
+            code in (0, -signal.SIGINT) for code in self.exit_codes.values())
 
 
 class NodeGroup:
@@ -412,8 +424,15 @@ def run_nodes(
     sigint_timeout: float = 10.0,
     sigterm_timeout: float = 5.0,
     on_started: Callable[[NodeGroup], None] | None = None,
+    autostart: bool = True,
+    transition_timeout: float = 600.0,
 ) -> RunResult:
-    """Start ``specs``, wait for a node to exit, ``stop`` or ``duration``, then stop all of them."""
+    """Start ``specs``, wait for a node to exit, ``stop`` or ``duration``, then stop all of them.
+
+    With ``autostart`` the lifecycle nodes among them (the localizers) are configured, then
+    activated, in order; one that fails (or does not answer within ``transition_timeout`` seconds)
+    stops the run with reason ``"lifecycle"``.
+    """
     group = NodeGroup(
         specs,
         domain_id=domain_id,
@@ -424,12 +443,24 @@ def run_nodes(
     )
     stop = stop or threading.Event()
     reason, first_exit = "error", None
+    manager_thread, lifecycle_failed = None, threading.Event()
     try:
         group.start()
         if on_started is not None:
             on_started(group)
+        managed = [spec.name for spec in specs if _is_lifecycle_node(spec)] if autostart else []
+        if managed:
+            manager_thread = threading.Thread(
+                target=_bring_up, args=(managed, domain_id, group, stop, lifecycle_failed, transition_timeout),
+                daemon=True, name="lifecycle")
+            manager_thread.start()
         reason, first_exit = group.wait(stop, duration)
+        if lifecycle_failed.is_set():
+            reason = "lifecycle"
     finally:
+        if manager_thread is not None:
+            stop.set()
+            manager_thread.join(timeout=5.0)
         codes, escalated = group.stop()
     if first_exit is not None:
         name, code = first_exit
@@ -439,6 +470,29 @@ def run_nodes(
             extra = f" after {escalated[name]}" if name in escalated else ""
             group.log(f"{name} stopped{extra} ({_describe(code)})")
     return RunResult(reason, first_exit, codes, escalated)
+
+
+def _is_lifecycle_node(spec: NodeSpec) -> bool:
+    from ..registry import PLUGINS
+
+    return spec.executable in PLUGINS
+
+
+def _bring_up(names: list[str], domain_id: int | None, group: NodeGroup, stop: threading.Event,
+              failed: threading.Event, timeout_s: float) -> None:
+    """Configure then activate ``names`` (nav2's lifecycle manager's order); on a failure, stop the run."""
+    from .lifecycle import LifecycleManager
+
+    manager = LifecycleManager(names, domain_id=domain_id, log=group.log)
+    try:
+        if manager.startup(timeout_s, cancelled=lambda: stop.is_set() or group.first_exited() is not None):
+            group.log(f"active: {', '.join(names)}")
+        elif not stop.is_set() and group.first_exited() is None:
+            group.log("a node did not come up: stopping the run")
+            failed.set()
+            stop.set()
+    finally:
+        manager.close()
 
 
 def install_stop_handlers(stop: threading.Event) -> None:
@@ -466,6 +520,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             "  parameters  mapping of single parameters (-p name:=value)\n"
             "  remaps      mapping from:to of topics/services (-r from:=to)\n"
             "  arguments   list of extra arguments before --ros-args\n"
+            "and 'autostart' (default true): configure and activate the lifecycle nodes (the localizers)\n"
+            "through their lifecycle_msgs services, as nav2's lifecycle manager does; false leaves them\n"
+            "unconfigured for another manager (ros2 lifecycle set, nav2's lifecycle_manager).\n"
             f"'{_SHARE_SUBSTITUTION}' is replaced by the package's share directory.\n"
             "Example: rls_run config/runs/office_mcl.yaml\n"
             "Exit status: 0 when every node stopped cleanly, 1 when a node failed or had to be killed."
@@ -477,6 +534,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, help="stop everything after this many seconds")
     parser.add_argument("--sigint-timeout", type=float, default=10.0, help="seconds to wait after SIGINT (default 10)")
     parser.add_argument("--sigterm-timeout", type=float, default=5.0, help="seconds to wait after SIGTERM (default 5)")
+    parser.add_argument("--no-autostart", action="store_true",
+                        help="leave the lifecycle nodes unconfigured (overrides the runfile's autostart)")
+    parser.add_argument("--transition-timeout", type=float, default=600.0,
+                        help="seconds a lifecycle node may take to configure or activate (default 600)")
     args = parser.parse_args(argv)
     try:
         runfile = load_runfile(args.runfile)
@@ -489,6 +550,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             stop=stop,
             sigint_timeout=args.sigint_timeout,
             sigterm_timeout=args.sigterm_timeout,
+            autostart=runfile.autostart and not args.no_autostart,
+            transition_timeout=args.transition_timeout,
         )
     except RunError as exc:
         print(f"rls_run: {exc}", file=sys.stderr)

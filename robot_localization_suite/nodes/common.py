@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from ..core.errors import LocalizationSuiteError
 from ..core.settings import Settings, help_text
 
-__all__ = ["run_node", "guarded", "help_parser"]
+__all__ = ["run_node", "guarded", "help_parser", "invocation"]
 
 
 def guarded(node: Node, callback: Callable[..., Any], what: str) -> Callable[..., Any]:
@@ -33,12 +35,22 @@ def guarded(node: Node, callback: Callable[..., Any], what: str) -> Callable[...
     return wrapper
 
 
+def invocation(executable: str) -> str:
+    """How this executable is started where it runs: ``ros2 run`` only where there is a ``ros2``."""
+    if shutil.which("ros2"):
+        return f"ros2 run robot_localization_suite {executable}"
+    started = sys.argv[0] if sys.argv else ""
+    if not started or started.endswith(".py") or started == "-m":  # python -m robot_localization_suite.nodes.X
+        return f"{sys.executable} -m robot_localization_suite.nodes.{executable}"
+    return executable if shutil.which(executable) == started else started
+
+
 def help_parser(executable: str, description: str, settings: Sequence[type[Settings]], topics: str) -> argparse.ArgumentParser:
     """``--help``: the description, the topics and every parameter (default, unit, range, meaning)."""
     epilog = "topics:\n" + topics + "\n\nparameters (set with --ros-args -p NAME:=VALUE or --params-file FILE):\n"
     epilog += help_text(*settings)
     return argparse.ArgumentParser(
-        prog=f"ros2 run robot_localization_suite {executable}",
+        prog=invocation(executable),
         description=description,
         epilog=epilog,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -59,11 +71,19 @@ def run_node(
     node = None
     try:
         node = make_node(options)
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        # A lifecycle node's shutdown transition ends the process once its reply is sent.
+        while rclpy.ok() and not getattr(node, "exit_requested", False):
+            executor.spin_once(timeout_sec=0.2)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SystemExit as exc:
         return int(exc.code or 0)
+    except LocalizationSuiteError as exc:
+        # A parameter of the wrong type or out of range: one line, as argparse reports a bad option.
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return 2
     except Exception:
         # SIGINT/SIGTERM shut the context down while a callback was publishing
         # ("publisher's context is invalid"): that is a normal stop, not a crash.

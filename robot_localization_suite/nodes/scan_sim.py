@@ -40,7 +40,8 @@ DESCRIPTION = (
     "from a scenario or from cmd_vel; --record DIR writes a rosbag2 MCAP bag instead."
 )
 TOPICS = """  out: map (nav_msgs/OccupancyGrid, transient local), scan (sensor_msgs/LaserScan),
-       odom (nav_msgs/Odometry), ground_truth (nav_msgs/Odometry in map),
+       odom (nav_msgs/Odometry), /tf (odom -> base), /tf_static (base -> laser, transient local),
+       ground_truth (nav_msgs/Odometry in map),
        camera/image_raw (sensor_msgs/Image, when the scenario has a camera)
   in:  cmd_vel (geometry_msgs/Twist, only without a scenario)"""
 
@@ -112,17 +113,21 @@ def _make_node(options: argparse.Namespace) -> Any:
     from rclpy.node import Node
     from sensor_msgs.msg import Image, LaserScan
 
-    from ..ros.params import declare_settings
-    from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS
+    from ..ros.params import declare_settings, parameter_values
+    from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
     from ..ros.sim_messages import StepMessages
+    from ..ros.tf import TFMessage
     from .common import guarded
 
     class ScanSimNode(Node):
         """Publishes the simulator's steps in real time (times ``speed``)."""
 
         def __init__(self) -> None:
-            super().__init__(NODE_NAME)
-            self.settings = from_params(ScanSimSettings, declare_settings(self, ScanSimSettings))
+            super().__init__(NODE_NAME, automatically_declare_parameters_from_overrides=True)
+            unused = declare_settings(self, ScanSimSettings)
+            if unused:
+                self.get_logger().warn(f"not used by this node: {', '.join(unused)}")
+            self.settings = from_params(ScanSimSettings, parameter_values(self, ScanSimSettings))
             try:
                 self.simulator = make_simulator(self.settings)
             except LocalizationSuiteError as exc:
@@ -142,7 +147,14 @@ def _make_node(options: argparse.Namespace) -> Any:
                 self.publishers_by_topic["camera/image_raw"] = self.create_publisher(
                     Image, "camera/image_raw", SENSOR_QOS
                 )
+            if TFMessage is not None:
+                self.publishers_by_topic["tf"] = self.create_publisher(TFMessage, "/tf", TF_QOS)
+                self.publishers_by_topic["tf_static"] = self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS)
+            else:
+                self.get_logger().warn("tf2_msgs not installed: no /tf and /tf_static")
             self.map_pub.publish(self.messages.map_message())
+            for topic, msg in self.messages.static_messages():
+                self.publishers_by_topic[topic].publish(msg)
             self.command = (0.0, 0.0)
             self.command_time = -math.inf
             self.driven_by_cmd_vel = scenario.motion is None

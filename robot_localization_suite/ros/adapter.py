@@ -9,7 +9,12 @@ directly with the messages of a bag, so both exercise the same code.
 Mounting offset: core localizers estimate the pose of the *laser*. The adapter
 gives them laser odometry (``odom (+) mount``) and laser initial poses, and
 turns their laser pose back into the base pose (``laser (+) mount^-1``), which
-is exact for a rigid mount and keeps every core method free of the offset.
+is exact for a rigid mount and keeps every core method free of the offset. A
+node that learns the mount from ``/tf_static`` only with the first scan defers
+it (``defer_mount``): odometry is held until :meth:`LocalizerAdapter.set_mount`.
+
+Each output also carries ``map -> odom`` as nav2_amcl computes it: the estimate
+composed with the inverse of the odometry at the estimate's stamp.
 """
 
 from __future__ import annotations
@@ -25,11 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
-from ..core.filter.odometry_gate import TIME_JUMP_RESET_S
+from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
 from ..core.localizer import CameraLocalizer, Estimate, Localizer
 from ..core.scan import LaserMount
-from ..core.se2 import compose, inverse
+from ..core.se2 import compose, inverse, relative
 from . import conversions
+from .tf import map_to_odom
 
 __all__ = ["AdapterOutput", "InputClock", "LocalizerAdapter", "ThrottledLog"]
 
@@ -58,6 +64,10 @@ class AdapterOutput:
 
     The messages are built on first access: a benchmark that reads only the
     estimate does not pay for turning 50,000 particles into a PoseArray.
+
+    Attributes:
+        map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry).
+        odometry_lag: how far [s] the estimate's stamp lies after the newest odometry used for it.
     """
 
     def __init__(
@@ -67,20 +77,27 @@ class AdapterOutput:
         node_name: str,
         max_candidates: int,
         extras_builder: Callable[[Estimate], dict[str, Any]] | None,
+        *,
+        frame_id: str = "map",
+        map_to_odom: NDArray[np.float64] | None = None,
+        odometry_lag: float = math.inf,
     ) -> None:
         self.estimate = estimate
         self.update_ms = update_ms
+        self.frame_id = frame_id
+        self.map_to_odom = map_to_odom
+        self.odometry_lag = odometry_lag
         self._node_name = node_name
         self._max_candidates = max_candidates
         self._extras_builder = extras_builder
 
     @cached_property
     def pose(self) -> Any:
-        return conversions.estimate_to_pose_msg(self.estimate)
+        return conversions.estimate_to_pose_msg(self.estimate, self.frame_id)
 
     @cached_property
     def candidates(self) -> Any:
-        return conversions.estimate_to_pose_array(self.estimate, max_poses=self._max_candidates)
+        return conversions.estimate_to_pose_array(self.estimate, self.frame_id, max_poses=self._max_candidates)
 
     @cached_property
     def diagnostics(self) -> Any:
@@ -103,6 +120,8 @@ def _same_map(a: Any, b: Any) -> bool:
 
 # Spread of an initial pose whose covariance cannot be used: ROS 1 amcl's (0.5 m, 0.5 m, pi/12 rad).
 DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
+# Odometry poses held at most while the mount is not known (a few minutes of a fast odometry source).
+_MAX_HELD_ODOMETRY = 20_000
 
 
 def _positive_definite(covariance: NDArray[np.float64]) -> bool:
@@ -165,6 +184,8 @@ class LocalizerAdapter:
             topic suffix (e.g. ``{"boxes": MarkerArray}``).
         max_candidates: cap on the poses put in the candidates message.
         max_future_s, time_jump_reset_s, clock: the :class:`InputClock`'s limits [s] and "now" [s].
+        global_frame: frame of the outputs; initial poses in another frame are refused.
+        defer_mount: hold odometry until :meth:`set_mount` gives the mount (a node reading /tf_static).
     """
 
     def __init__(
@@ -179,6 +200,8 @@ class LocalizerAdapter:
         max_future_s: float = 1.0,
         time_jump_reset_s: float = TIME_JUMP_RESET_S,
         clock: Callable[[], float] | None = None,
+        global_frame: str = "map",
+        defer_mount: bool = False,
     ) -> None:
         self.localizer = localizer
         # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
@@ -188,16 +211,46 @@ class LocalizerAdapter:
         self.node_name = node_name
         self.log = ThrottledLog(log)
         self._info = log
-        self.mount = mount or LaserMount()
-        self._mount_inv = inverse(self.mount.pose)
-        if hasattr(localizer, "set_laser_mount"):
-            # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
-            localizer.set_laser_mount(self.mount)
+        self.global_frame = global_frame
+        self.mount = LaserMount()
+        self._mount_inv: NDArray[np.float64] = np.zeros(3)
+        # Odometry held while the mount is not known yet (defer_mount); None once it is.
+        self._held_odometry: list[tuple[float, NDArray[np.float64]]] | None = [] if defer_mount else None
         self._extras_builder = extras_builder
         self.clock = InputClock(max_future_s, time_jump_reset_s, clock)
+        # The base's odometry (before the mount), for map -> odom at an estimate's stamp.
+        self.odometry = OdometryGate(time_jump_s=time_jump_reset_s)
+        self._last_odometry_stamp = -math.inf
         self._last_beam_count: int | None = None
         self.has_map = False
         self._current_map: Any = None
+        if not defer_mount:
+            self.set_mount(mount or LaserMount())
+
+    @property
+    def current_map(self) -> Any:
+        """The map in use (a ``GridMap``), or None."""
+        return self._current_map
+
+    @property
+    def last_odometry_stamp(self) -> float:
+        """Stamp [s] of the newest odometry used (-inf before any)."""
+        return self._last_odometry_stamp
+
+    @property
+    def mount_known(self) -> bool:
+        return self._held_odometry is None
+
+    def set_mount(self, mount: LaserMount) -> None:
+        """Use ``mount`` from now on; held odometry (``defer_mount``) goes to the localizer with it."""
+        self.mount = mount
+        self._mount_inv = inverse(mount.pose)
+        if hasattr(self.localizer, "set_laser_mount"):
+            # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
+            self.localizer.set_laser_mount(mount)
+        held, self._held_odometry = self._held_odometry, None
+        for stamp, pose in held or ():
+            self.localizer.on_odometry(stamp, compose(pose, mount.pose))
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
@@ -222,24 +275,52 @@ class LocalizerAdapter:
         self.has_map = True
 
     def on_odom_msg(self, msg: Any) -> None:
-        stamp, pose = conversions.odometry_from_msg(msg)
+        self.on_odometry(*conversions.odometry_from_msg(msg))
+
+    def on_odometry(self, stamp: float, pose: NDArray[np.float64]) -> None:
+        """The base's odometry pose ``(3,)`` in the odom frame at ``stamp`` [s] (from the odom topic or /tf)."""
         if not np.all(np.isfinite(pose)):
             self.log("warn", "odom_nan", f"ignoring odometry with non-finite pose {pose.tolist()!r}")
             return
         if not self._admit("odometry", stamp):
             return
+        self.odometry.add(stamp, pose)  # a stamp far in the past starts its new timeline, as the clock did
+        self._last_odometry_stamp = stamp
+        if self._held_odometry is not None:
+            self._held_odometry.append((stamp, pose))
+            del self._held_odometry[:-_MAX_HELD_ODOMETRY]
+            return
         self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
 
-    def on_initial_pose_msg(self, msg: Any) -> None:
+    def on_initial_pose_msg(self, msg: Any) -> bool:
+        """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, non-finite)."""
+        frame = msg.header.frame_id.lstrip("/")
+        if frame != self.global_frame:
+            self.log("warn", "initialpose_frame", f"ignoring initial pose in frame {frame!r}: initial poses must be in "
+                     f"the global frame {self.global_frame!r} (global_frame_id)")
+            return False
         pose, covariance = conversions.initial_pose_from_msg(msg)
         if not np.all(np.isfinite(pose)):
             self.log("warn", "initialpose", f"ignoring initial pose with non-finite values {pose.tolist()!r}")
-            return
+            return False
+        stamp = conversions.stamp_to_seconds(msg.header.stamp)
+        then, now = self.odometry.at(stamp), self.odometry.latest
+        if stamp > 0.0 and then is not None and now is not None:
+            # A pose of the past (RViz stamps it when clicked): moved on by the odometry since, as nav2_amcl does.
+            pose = compose(pose, relative(then, now))
         if not _positive_definite(covariance):
             self.log("warn", "initialpose_covariance",
                      f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is not positive definite: "
                      f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
                      f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
+            self.set_initial_pose(pose)
+        else:
+            self.set_initial_pose(pose, covariance)
+        return True
+
+    def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:
+        """Restart around the base pose ``(3,)`` in the global frame; no covariance: the default spread."""
+        if covariance is None:
             covariance = np.diag(np.square(DEFAULT_INITIAL_STD))
         self._info("info", f"initial pose x={pose[0]:.2f} y={pose[1]:.2f} yaw={pose[2]:.2f}")
         self.localizer.set_initial_pose(compose(pose, self.mount.pose), covariance)
@@ -335,6 +416,10 @@ class LocalizerAdapter:
         )
 
     def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
+        base = self.to_base_estimate(estimate)
+        odom = self.odometry.at(base.stamp)
         return AdapterOutput(
-            self.to_base_estimate(estimate), update_ms, self.node_name, self.max_candidates, self._extras_builder
+            base, update_ms, self.node_name, self.max_candidates, self._extras_builder, frame_id=self.global_frame,
+            map_to_odom=None if odom is None else map_to_odom(base.pose, odom),
+            odometry_lag=base.stamp - self._last_odometry_stamp,
         )

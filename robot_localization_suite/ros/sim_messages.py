@@ -1,7 +1,9 @@
 """The simulator's steps as ROS messages, published live by ``scan_sim`` or written into a bag.
 
-:class:`StepMessages` builds the messages of one simulator step (odometry before the scan it
-belongs to); :func:`record` runs a whole scenario as fast as possible into an MCAP bag.
+:class:`StepMessages` builds the messages of one simulator step (odometry, as ``odom`` and as
+``odom -> base`` on ``/tf``, before the scan it belongs to) and the static ones (``base -> laser``
+on ``/tf_static``, the scenario's laser mount); :func:`record` runs a whole scenario as fast as
+possible into an MCAP bag. Without tf2_msgs (:data:`.tf.TFMessage` None) there is no ``/tf``.
 """
 
 from __future__ import annotations
@@ -11,10 +13,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..core.sim.settings import ScanSimSettings
 from ..core.sim.simulator import SimulationStep, Simulator
 from . import conversions
 from .bag import BagWriter
+from .tf import TFMessage, tf_message, transform_to_msg
 
 __all__ = ["StepMessages", "record"]
 
@@ -47,6 +52,14 @@ class StepMessages:
         msg.header.frame_id = self.settings.map_frame
         return msg
 
+    def static_messages(self) -> list[tuple[str, Any]]:
+        """``(topic, message)`` published once: ``base -> laser`` (the scenario's laser mount) on ``tf_static``."""
+        if TFMessage is None:
+            return []
+        s = self.settings
+        mount = np.asarray(self.simulator.scenario.laser.mount, dtype=np.float64)
+        return [("tf_static", tf_message([transform_to_msg(self.epoch, s.base_frame, s.laser_frame, mount)]))]
+
     def step_messages(self, step: SimulationStep) -> list[tuple[str, Any]]:
         """``(topic, message)`` of a step in publication order (odometry before the scan it belongs to)."""
         seconds = self.stamp(step.time)
@@ -54,6 +67,8 @@ class StepMessages:
         out = [
             ("odom", conversions.odometry_to_msg(seconds, step.odom_pose, frame_id=s.odom_frame,
                                                  child_frame_id=s.base_frame, velocity=step.odom_velocity)),
+            *([("tf", tf_message([transform_to_msg(seconds, s.odom_frame, s.base_frame, step.odom_pose)]))]
+              if TFMessage is not None else []),
             ("ground_truth", conversions.odometry_to_msg(seconds, step.true_pose, frame_id=s.map_frame,
                                                          child_frame_id=s.base_frame, velocity=step.true_velocity)),
             ("scan", conversions.scan_to_msg(seconds, s.laser_frame, ranges=step.ranges, **self._scan_fields)),
@@ -82,6 +97,9 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
     with BagWriter(bag_dir, compress=True) as writer:
         writer.write("/map", builder.map_message(), 0)
         counts["/map"] = 1
+        for topic, msg in builder.static_messages():
+            writer.write("/" + topic, msg, 0)
+            counts["/" + topic] = 1
         for step in simulator.run():
             stamp_ns = int(round(builder.stamp(step.time) * 1e9))
             for topic, msg in builder.step_messages(step):

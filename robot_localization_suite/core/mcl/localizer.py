@@ -131,14 +131,8 @@ class MonteCarloLocalizer:
         self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_filter_state()
         self.last_estimate: Estimate | None = None
-        if self.settings.set_initial_pose:
-            s = self.settings
-            self._pending: _Init | None = _Init(
-                np.array([s.initial_pose_x, s.initial_pose_y, s.initial_pose_yaw]),
-                np.diag([s.initial_std_xy**2, s.initial_std_xy**2, s.initial_std_yaw**2]),
-            )
-        else:
-            self._pending = _Init()
+        # The node's set_initial_pose / initial_pose.* (registry.NodeSettings) arrive through set_initial_pose.
+        self._pending: _Init | None = _Init()
         if grid_map is not None:
             self.set_map(grid_map)
 

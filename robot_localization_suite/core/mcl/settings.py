@@ -99,19 +99,12 @@ class MclSettings(Settings):
     pf_z: float = setting(
         0.99, "KLD-sampling: normal quantile of the bound, used as nav2 uses it (nav2 0.99)", low=0.0, high=10.0
     )
-    set_initial_pose: bool = setting(False, "start around initial_pose.* instead of uniformly over free space (nav2)")
-    initial_pose_x: float = setting(0.0, "initial pose x in the map (nav2)", unit="m", low=-_BIG, high=_BIG,
-                                    ros_name="initial_pose.x")
-    initial_pose_y: float = setting(0.0, "initial pose y in the map (nav2)", unit="m", low=-_BIG, high=_BIG,
-                                    ros_name="initial_pose.y")
-    initial_pose_yaw: float = setting(0.0, "initial pose heading in the map (nav2)", unit="rad", low=-7.0, high=7.0,
-                                      ros_name="initial_pose.yaw")
     initial_std_xy: float = setting(
-        0.5, "position standard deviation around initial_pose.* (ROS 1 amcl 0.5; nav2 uses zero)", unit="m",
+        0.5, "position standard deviation of a new cloud around a known pose (ROS 1 amcl 0.5)", unit="m",
         low=0.0, high=1e3,
     )
     initial_std_yaw: float = setting(
-        math.pi / 12.0, "heading standard deviation around initial_pose.* (ROS 1 amcl pi/12)", unit="rad",
+        math.pi / 12.0, "heading standard deviation of a new cloud around a known pose (ROS 1 amcl pi/12)", unit="rad",
         low=0.0, high=7.0,
     )
     effective_beams: float = setting(

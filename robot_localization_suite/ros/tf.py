@@ -1,0 +1,195 @@
+"""TF for a planar robot: transforms as SE(2) poses, a small buffer of the frames a localizer needs.
+
+A localizer reads two things from TF, as nav2_amcl does: odometry (``odom -> base``, through
+any chain of frames between them) and the laser's mount (``base -> laser``, on ``/tf_static``),
+and writes one: ``map -> odom``. Transforms are projected on the plane (x, y, yaw); one with a
+non-finite value or a quaternion whose norm is off by more than tf2's tolerance is refused, as
+is one stamped more than ``transform_tolerance`` behind its frame's newest.
+``tf2_msgs`` may be missing (a PyPI install without ``make``'s interfaces): :data:`TFMessage`
+is then None and the callers say so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import TransformStamped
+from numpy.typing import NDArray
+
+from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
+from ..core.se2 import compose, inverse, quaternion_to_yaw, yaw_to_quaternion
+from .conversions import seconds_to_stamp, stamp_to_seconds
+
+try:
+    from tf2_msgs.msg import TFMessage
+except ImportError:  # no tf2_msgs: neither a ROS 2 install nor make's interfaces/
+    TFMessage = None
+
+__all__ = ["TFMessage", "TransformError", "PlanarTransform", "TransformBuffer", "transform_from_msg",
+           "transform_to_msg", "tf_message", "frame_name", "map_to_odom"]
+
+# tf2 refuses a quaternion whose norm differs from 1 by more than this (TF_DENORMALIZED_QUATERNION).
+QUATERNION_TOLERANCE = 0.01
+
+
+class TransformError(ValueError):
+    """A transform that cannot be used (non-finite, a quaternion that is not a rotation)."""
+
+
+def frame_name(frame_id: str) -> str:
+    """A frame id as tf2 compares them: without a leading slash."""
+    return frame_id.lstrip("/")
+
+
+@dataclass(frozen=True)
+class PlanarTransform:
+    """``parent -> child`` at ``stamp`` [s]: the child frame's pose ``(x, y, yaw)`` in the parent."""
+
+    parent: str
+    child: str
+    stamp: float
+    pose: NDArray[np.float64]
+
+
+def transform_from_msg(msg: Any) -> PlanarTransform:
+    """``geometry_msgs/TransformStamped`` -> :class:`PlanarTransform` (z, roll and pitch dropped).
+
+    Raises:
+        TransformError: a non-finite value, or a quaternion that is not a unit one, naming the frames.
+    """
+    t, q = msg.transform.translation, msg.transform.rotation
+    parent, child = frame_name(msg.header.frame_id), frame_name(msg.child_frame_id)
+    values = [t.x, t.y, t.z, q.x, q.y, q.z, q.w]
+    if not all(math.isfinite(v) for v in values):
+        raise TransformError(f"transform {parent} -> {child} has a non-finite value: {values!r}")
+    norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
+    if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+        raise TransformError(f"transform {parent} -> {child} has a quaternion of norm {norm:.4g}, not a rotation")
+    yaw = quaternion_to_yaw(q.x, q.y, q.z, q.w)
+    return PlanarTransform(parent, child, stamp_to_seconds(msg.header.stamp), np.array([t.x, t.y, yaw]))
+
+
+def transform_to_msg(stamp: float, parent: str, child: str, pose: NDArray[np.float64]) -> TransformStamped:
+    """A planar pose as ``geometry_msgs/TransformStamped`` ``parent -> child`` at ``stamp`` [s]."""
+    msg = TransformStamped()
+    msg.header.stamp = seconds_to_stamp(stamp)
+    msg.header.frame_id = parent
+    msg.child_frame_id = child
+    msg.transform.translation.x, msg.transform.translation.y = float(pose[0]), float(pose[1])
+    r = msg.transform.rotation
+    r.x, r.y, r.z, r.w = yaw_to_quaternion(float(pose[2]))
+    return msg
+
+
+def tf_message(transforms: Iterable[TransformStamped]) -> Any:
+    """A ``tf2_msgs/TFMessage`` holding ``transforms``.
+
+    Raises:
+        RuntimeError: tf2_msgs is not installed.
+    """
+    if TFMessage is None:
+        raise RuntimeError("tf2_msgs is not installed (a ROS 2 install has it; a PyPI one gets it from `make`)")
+    return TFMessage(transforms=list(transforms))
+
+
+class TransformBuffer:
+    """The transforms of a tree of frames: the static ones, and a bounded history of each dynamic one.
+
+    Args:
+        log: ``log(level, key, text)``, throttled by the caller (the adapter's ``ThrottledLog``).
+        tolerance_s: a dynamic transform stamped more than this behind its frame's newest is dropped.
+        time_jump_reset_s: one stamped more than this behind starts a new timeline for its frame.
+        ignore: ``(parent, child)`` pairs not stored (the node's own ``map -> odom``).
+    """
+
+    def __init__(
+        self,
+        log: Callable[[str, str, str], None],
+        *,
+        tolerance_s: float = 1.0,
+        time_jump_reset_s: float = TIME_JUMP_RESET_S,
+        ignore: Iterable[tuple[str, str]] = (),
+    ) -> None:
+        self.log = log
+        self.tolerance_s = float(tolerance_s)
+        self.time_jump_reset_s = float(time_jump_reset_s)
+        self.ignore = set(ignore)
+        self._parent: dict[str, str] = {}
+        self._static: dict[str, NDArray[np.float64]] = {}
+        self._dynamic: dict[str, OdometryGate] = {}
+        self._newest: dict[str, float] = {}
+
+    def add_message(self, msg: Any, *, static: bool) -> list[PlanarTransform]:
+        """Store the usable transforms of a ``tf2_msgs/TFMessage``; returns the dynamic ones stored."""
+        stored = []
+        for item in msg.transforms:
+            try:
+                transform = transform_from_msg(item)
+            except TransformError as exc:
+                self.log("warn", "tf_bad", f"ignoring /tf{'_static' if static else ''} input: {exc}")
+                continue
+            if (transform.parent, transform.child) in self.ignore:
+                continue
+            if self.add(transform, static=static):
+                stored.append(transform)
+        return [t for t in stored if not static]
+
+    def add(self, transform: PlanarTransform, *, static: bool) -> bool:
+        """Store one transform; False when it is dropped (too old, or older than its frame's last)."""
+        child = transform.child
+        self._parent[child] = transform.parent
+        if static:
+            self._static[child] = transform.pose
+            self._dynamic.pop(child, None)
+            return True
+        self._static.pop(child, None)
+        history = self._dynamic.setdefault(child, OdometryGate(time_jump_s=self.time_jump_reset_s))
+        newest = self._newest.get(child)
+        if newest is not None and newest - self.time_jump_reset_s <= transform.stamp < newest - self.tolerance_s:
+            self.log("warn", "tf_old", f"ignoring transform {transform.parent} -> {child} stamped {transform.stamp:.3f} s: "
+                     f"older than transform_tolerance ({self.tolerance_s:g} s) behind its newest ({newest:.3f} s)")
+            return False
+        if not history.add(transform.stamp, transform.pose):
+            return False
+        self._newest[child] = transform.stamp
+        return True
+
+    def chain(self, parent: str, child: str) -> list[str] | None:
+        """The frames from ``child`` up to ``parent`` (both included), or None when not connected."""
+        frames = [child]
+        while frames[-1] != parent:
+            up = self._parent.get(frames[-1])
+            if up is None or up in frames:
+                return None
+            frames.append(up)
+        return frames
+
+    def lookup(self, parent: str, child: str, stamp: float | None = None, *, static_only: bool = False) -> NDArray[np.float64] | None:
+        """The pose of ``child`` in ``parent`` at ``stamp`` (dynamic links interpolated; None: the newest).
+
+        None when the frames are not connected, or (``static_only``) a link on the way is dynamic.
+        """
+        frames = self.chain(parent, child)
+        if frames is None:
+            return None
+        pose: NDArray[np.float64] = np.zeros(3)
+        for frame in frames[:-1]:
+            link = self._static.get(frame)
+            if link is None:
+                if static_only:
+                    return None
+                history = self._dynamic[frame]
+                link = history.latest if stamp is None else history.at(stamp)
+                if link is None:
+                    return None
+            pose = compose(link, pose)
+        return pose
+
+
+def map_to_odom(map_to_base: NDArray[np.float64], odom_to_base: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The ``map -> odom`` transform that puts the base at ``map_to_base`` given odometry ``odom_to_base``."""
+    return compose(map_to_base, inverse(odom_to_base))
