@@ -251,3 +251,17 @@ def test_distance_field_values() -> None:
 def test_distance_field_without_obstacles_is_the_map_diagonal() -> None:
     grid = GridMap(np.zeros((3, 4), np.int8), 0.5)
     np.testing.assert_allclose(grid.distance_field(), np.hypot(3, 4) * 0.5)
+
+
+def test_the_fingerprint_ignores_float32_noise_in_the_resolution_but_not_the_content() -> None:
+    data = np.zeros((10, 12), dtype=np.int8)
+    data[3, 4] = 100
+    from_yaml = GridMap(data, 0.05, (1.0, -2.0))
+    from_topic = GridMap(data.copy(), float(np.float32(0.05)), (1.0, -2.0))  # 0.05000000074505806
+    assert from_topic.resolution != from_yaml.resolution
+    assert from_topic.fingerprint() == from_yaml.fingerprint()
+    assert GridMap(data, 0.1, (1.0, -2.0)).fingerprint() != from_yaml.fingerprint()
+    assert GridMap(data, 0.05, (1.0, -2.05)).fingerprint() != from_yaml.fingerprint()
+    moved = data.copy()
+    moved[3, 5] = 100
+    assert GridMap(moved, 0.05, (1.0, -2.0)).fingerprint() != from_yaml.fingerprint()

@@ -166,12 +166,17 @@ class GridMap:
         return self._cache[key]
 
     def fingerprint(self) -> str:
-        """A short hash of the map content, for keying on-disk caches."""
+        """A short hash of the map content, for keying on-disk caches.
+
+        The resolution enters at float32 precision, as nav_msgs/OccupancyGrid carries it: the same map
+        from a YAML file (0.05) and from the topic (0.05000000074505806) shares one key.
+        """
         import hashlib
 
         digest = hashlib.sha256()
         digest.update(self.data.tobytes())
-        digest.update(np.array([self.resolution, *self.origin], dtype=np.float64).tobytes())
+        digest.update(np.array([self.resolution], dtype=np.float32).tobytes())
+        digest.update(np.array(self.origin, dtype=np.float64).tobytes())
         digest.update(np.array(self.data.shape, dtype=np.int64).tobytes())
         return digest.hexdigest()[:16]
 
