@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcl_test_world import WAYPOINTS, _follow, office_map
 
+from robot_localization_suite.core.errors import SettingsError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ial.kernels import contract_box, inmap_hull, obstacle_hull, pave
 from robot_localization_suite.core.ial.localizer import (
@@ -28,6 +29,7 @@ from robot_localization_suite.core.ial.localizer import (
 from robot_localization_suite.core.interval import angle_hull, compose_boxes, interval_cos, interval_mul, interval_sin
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import boxes_contain
+from robot_localization_suite.core.motion import OdometryMotionModel
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount, Scan
 from robot_localization_suite.core.se2 import compose, wrap_angle
@@ -266,6 +268,50 @@ def test_prediction_contains_the_true_pose_for_bounded_odometry_steps_short_and_
         box = np.array([[start[0], start[0], start[1], start[1], start[2], start[2]]])
         predicted = localizer.predict(box, [(previous, current)])
         assert boxes_contain(predicted, true_next), (start, true_next, predicted)
+
+
+class _ClippedNormal:
+    """A random stream whose standard normal draws stop at +-4: Thrun's Gaussian odometry within 4 sigma."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+
+    def normal(self, loc: float, scale: float, size: int) -> np.ndarray:
+        return np.clip(self.rng.normal(loc, scale, size), -4.0, 4.0)
+
+
+def test_prediction_contains_the_true_pose_for_thrun_odometry_within_4_sigma() -> None:
+    # The real-log bags' odometry (tools/carmen_to_bag.py): Thrun's model with variance scales alpha1..alpha4;
+    # std = sqrt(a1 rot^2 + a2 trans^2) <= sqrt(a1) |rot| + sqrt(a2) trans, so 4 sqrt(alpha) bound 4 sigma.
+    # Short steps with large rotations are the hard ones: the realised translation may come out negative.
+    alphas = (1.2e-3, 1e-4, 4e-4, 1e-4)
+    model = OdometryMotionModel(*alphas)
+    k = 4.0
+    settings = IALSettings(odom_relative_rotation=k * math.sqrt(alphas[0]),
+                           odom_rotation_per_translation=k * math.sqrt(alphas[1]),
+                           odom_relative_translation=k * math.sqrt(alphas[2]),
+                           odom_translation_per_rotation=k * math.sqrt(alphas[3]),
+                           odom_absolute_translation=0.0, odom_absolute_rotation=0.0)
+    localizer = IntervalLocalizer(settings)
+    rng = np.random.default_rng(17)
+    noise = _ClippedNormal(rng)
+    for _ in range(3000):
+        start = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-math.pi, math.pi)])
+        trans = [0.0, rng.uniform(0.0, 0.03), rng.uniform(0.0, 1.2)][rng.integers(0, 3)]
+        turn = rng.random() < 0.5  # else nearly straight: the noise then comes from the cross terms
+        rot1 = rng.uniform(-math.pi, math.pi) if turn else rng.uniform(-0.02, 0.02)
+        rot2 = rng.uniform(-1.0, 1.0) if turn else rng.uniform(-0.02, 0.02)
+        true_next = compose(start, np.array([trans * math.cos(rot1), trans * math.sin(rot1), wrap_angle(rot1 + rot2)]))
+        previous = rng.uniform(-20, 20, 3)
+        current = model.sample(previous[None, :], start, true_next, noise)[0]
+        box = np.array([[start[0], start[0], start[1], start[1], start[2], start[2]]])
+        assert boxes_contain(localizer.predict(box, [(previous, current)]), true_next), (start, true_next)
+
+
+def test_odometry_bounds_that_cannot_be_inverted_are_refused() -> None:
+    with pytest.raises(SettingsError, match="cannot be inverted"):
+        IALSettings(odom_relative_translation=0.5, odom_translation_per_rotation=2.0,
+                    odom_rotation_per_translation=0.5)
 
 
 def test_compose_boxes_is_outward_for_a_laser_mount() -> None:

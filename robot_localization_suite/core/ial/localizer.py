@@ -137,17 +137,29 @@ def odometry_step_bounds(
     absolute_translation: float,
     relative_rotation: float,
     absolute_rotation: float,
+    rotation_per_translation: float = 0.0,
+    translation_per_rotation: float = 0.0,
 ) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float], bool]:
     """Bounds of the true ``rot1, trans, rot2`` of one odometry step, and whether its direction is known.
 
-    :meth:`OdometryMotionModel.bounds` states that each measured component lies
-    within ``true +- (relative * |true| + absolute)`` (the simulator's bounded
-    odometry draws it so). Around the *measured* value ``m`` this inverts to
-    ``m +- (relative * |m| + absolute) / (1 - relative)``. The decomposition of
-    the measured step is computed without :func:`odometry_delta`'s 1 cm
-    threshold; when the true translation may be under that threshold, the true
-    decomposition has ``rot1 = 0`` whatever the direction of travel, so the
-    direction is reported unknown (the heading bound ``rot1 + rot2`` still holds).
+    The stated bound (docs/ial.md, "Odometry"): the odometry realises the true
+    decomposition (``rot1 = 0`` below 1 cm, as :func:`odometry_delta`) with errors
+
+    - ``|e_rot_i| <= relative_rotation |rot_i| + rotation_per_translation trans + absolute_rotation``,
+    - ``|e_trans| <= relative_translation trans + translation_per_rotation (|rot1| + |rot2|)
+      + absolute_translation``.
+
+    The simulator's bounded odometry draws each component so (without the cross
+    terms). Thrun's and nav2's Gaussian model scales its noise by the distance of
+    a rotation to 0 or pi, never more than ``|rot|``, and its realised translation
+    may come out negative (the measured step then points backwards, ``rot1`` and
+    ``rot2`` shifted by pi); ``|rot_i| <= |measured_i| + |e_rot_i|`` then bounds the
+    noise scale, and ``trans <= measured + |e_trans|`` holds either way. Solving
+    the two bounds for the errors gives the intervals below; with the cross terms
+    at 0 they are ``m +- (relative |m| + absolute) / (1 - relative)``. The step is
+    decomposed without the 1 cm threshold; when the true translation may be
+    under 1 cm its direction is reported unknown (the true ``rot1`` is then 0
+    whatever the direction of travel; ``rot1 + rot2`` still bounds the heading).
     """
     previous = np.asarray(previous, dtype=np.float64)
     current = np.asarray(current, dtype=np.float64)
@@ -155,20 +167,26 @@ def odometry_step_bounds(
     trans = math.hypot(dx, dy)
     rot1 = float(angle_difference(math.atan2(dy, dx), previous[2])) if trans > 0.0 else 0.0
     rot2 = float(angle_difference(angle_difference(current[2], previous[2]), rot1))
+    size1, size2 = abs(rot1), abs(rot2)
+    # |e_trans| bound from the linear system of the two stated bounds (settings.validate: denominator > 0).
+    rho = 1.0 / (1.0 - relative_rotation)
+    trans_error = (
+        relative_translation * trans
+        + translation_per_rotation * rho * (size1 + size2)
+        + 2.0 * translation_per_rotation * rho * (rotation_per_translation * trans + absolute_rotation)
+        + absolute_translation
+    ) / (1.0 - relative_translation - 2.0 * translation_per_rotation * rho * rotation_per_translation)
+    trans_max = trans + trans_error
 
-    def around(value: float, relative: float, absolute: float) -> tuple[float, float]:
-        half = (relative * abs(value) + absolute) / (1.0 - relative) + OUTWARD
+    def rotation_bounds(value: float, size: float) -> tuple[float, float]:
+        half = (relative_rotation * size + rotation_per_translation * trans_max + absolute_rotation) / (
+            1.0 - relative_rotation
+        ) + OUTWARD
         return value - half, value + half
 
-    trans_bounds = around(trans, relative_translation, absolute_translation)
-    trans_bounds = (max(trans_bounds[0], 0.0), trans_bounds[1])
+    trans_bounds = (max(trans - trans_error - OUTWARD, 0.0), trans_max + OUTWARD)
     direction_known = trans_bounds[0] >= _MIN_TRANSLATION_FOR_HEADING
-    return (
-        around(rot1, relative_rotation, absolute_rotation),
-        trans_bounds,
-        around(rot2, relative_rotation, absolute_rotation),
-        direction_known,
-    )
+    return rotation_bounds(rot1, size1), trans_bounds, rotation_bounds(rot2, size2), direction_known
 
 
 @dataclass
@@ -337,6 +355,8 @@ class IntervalLocalizer:
                 absolute_translation=s.odom_absolute_translation,
                 relative_rotation=s.odom_relative_rotation,
                 absolute_rotation=s.odom_absolute_rotation,
+                rotation_per_translation=s.odom_rotation_per_translation,
+                translation_per_rotation=s.odom_translation_per_rotation,
             )
             if direction_known:
                 travel_lo = boxes[:, 4] + rot1[0] - OUTWARD

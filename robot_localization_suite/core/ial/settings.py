@@ -41,6 +41,12 @@ class IALSettings(Settings):
                                             low=0.0, high=0.99)
     odom_absolute_rotation: float = setting(math.radians(1.0), "odometry bound: rotation error per step, absolute "
                                             "part", unit="rad", low=0.0, high=3.14)
+    odom_rotation_per_translation: float = setting(0.0, "odometry bound: rotation error per step per metre of "
+                                                   "translation (the alpha2 term of Thrun's model; ours)",
+                                                   unit="rad/m", low=0.0, high=10.0)
+    odom_translation_per_rotation: float = setting(0.0, "odometry bound: translation error per step per radian of "
+                                                   "rotation (the alpha4 term of Thrun's model; ours)",
+                                                   unit="m/rad", low=0.0, high=10.0)
     contraction_passes: int = setting(3, "forward-backward passes per box at most", low=1, high=100)
     min_contraction_gain: float = setting(0.05, "stop the passes when no width shrank by more than this fraction",
                                           low=0.0, high=0.99)
@@ -70,4 +76,12 @@ class IALSettings(Settings):
         if self.max_outliers >= self.max_beams:
             raise SettingsError(
                 f"IALSettings.max_outliers ({self.max_outliers!r}) must be below max_beams ({self.max_beams!r})"
+            )
+        coupling = (self.odom_relative_translation + 2.0 * self.odom_translation_per_rotation
+                    * self.odom_rotation_per_translation / (1.0 - self.odom_relative_rotation))
+        if coupling >= 1.0:
+            raise SettingsError(
+                "IALSettings odometry bounds cannot be inverted: odom_relative_translation + 2 "
+                "odom_translation_per_rotation odom_rotation_per_translation / (1 - odom_relative_rotation) "
+                f"= {coupling!r} must be below 1"
             )
