@@ -70,7 +70,14 @@ class ObstacleGrid:
         MapError: the map is too large for the arithmetic error budget.
     """
 
-    def __init__(self, grid_map: GridMap, *, margin: float = 0.0, laser_in_free_cells: bool = True) -> None:
+    def __init__(
+        self,
+        grid_map: GridMap,
+        *,
+        margin: float = 0.0,
+        laser_in_free_cells: bool = True,
+        unknown_is_obstacle: bool = True,
+    ) -> None:
         x_min, x_max, y_min, y_max = grid_map.extent
         if max(abs(x_min), abs(x_max), abs(y_min), abs(y_max)) > MAX_COORDINATE:
             raise MapError(
@@ -79,8 +86,13 @@ class ObstacleGrid:
         self.grid_map = grid_map
         self.origin = (float(grid_map.origin[0]), float(grid_map.origin[1]))
         self.resolution = float(grid_map.resolution)
+        # Where a beam may end: occupied cells, and unknown ones unless they count as outliers
+        # (sat_any keeps them, for the retry of a scan that leaves no box).
         self.obstacle = grid_map.occupied_mask | grid_map.unknown_mask
-        self.sat = summed_area_table(self.obstacle)
+        self.sat_any = summed_area_table(self.obstacle)
+        if not unknown_is_obstacle:
+            self.obstacle = grid_map.occupied_mask
+        self.sat = self.sat_any if unknown_is_obstacle else summed_area_table(self.obstacle)
         # Where the laser may stand: free cells, or any cell not marked occupied.
         self.free_sat = summed_area_table(grid_map.free_mask if laser_in_free_cells else ~grid_map.occupied_mask)
         # Cells surely inside an obstacle: occupied cells eroded by twice the map margin.
@@ -228,7 +240,10 @@ class IntervalLocalizer:
 
     def set_map(self, grid_map: GridMap) -> None:
         self.obstacles = ObstacleGrid(
-            grid_map, margin=self.settings.map_margin, laser_in_free_cells=self.settings.laser_in_free_cells
+            grid_map,
+            margin=self.settings.map_margin,
+            laser_in_free_cells=self.settings.laser_in_free_cells,
+            unknown_is_obstacle=self.settings.unknown_is_obstacle,
         )
         self.reinitialize()
 
@@ -298,16 +313,26 @@ class IntervalLocalizer:
             return self._estimate(scan.stamp, boxes, consistent, details, status, contracted=False)
 
         result = self.iterate(boxes, angles, range_lo, range_hi)
+        contractions = result.contractions
         status = None
+        details["outliers_retried"] = False
+        if len(result.boxes) == 0 and tracking and s.max_outliers_retry > s.max_outliers:
+            # More outliers than max_outliers in this scan, readings into unknown space, or a kidnapping:
+            # the same boxes under the looser bound (and unknown cells as possible ends).
+            details["outliers_retried"] = True
+            result = self.iterate(boxes, angles, range_lo, range_hi, max_outliers=s.max_outliers_retry,
+                                  unknown_is_obstacle=True)
+            contractions += result.contractions
         if len(result.boxes) == 0 and tracking:
             # Section 3.2: an empty list means kidnapping (or lost): restart over the whole map.
             details["restarted"] = True
             result = self.iterate(self.obstacles.whole_map_box(), angles, range_lo, range_hi)
+            contractions += result.contractions
             status = LocalizerStatus.LOST
         if len(result.boxes) == 0:
             status = LocalizerStatus.LOST
             details["restarted"] = True
-        details["contractions"] = result.contractions
+        details["contractions"] = contractions
         details["limited"] = result.limited
         self.boxes = result.boxes if len(result.boxes) else None
         return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status, contracted=True)
@@ -393,20 +418,27 @@ class IntervalLocalizer:
         angles: NDArray[np.float64],
         range_lo: NDArray[np.float64],
         range_hi: NDArray[np.float64],
+        *,
+        max_outliers: int | None = None,
+        unknown_is_obstacle: bool | None = None,
     ) -> IterationResult:
-        """Lines 2-12 of Algorithm 1 on already predicted boxes: contract, bisect, keep non-empty."""
+        """Lines 2-12 of Algorithm 1 on already predicted boxes: contract, bisect, keep non-empty.
+
+        ``max_outliers`` and ``unknown_is_obstacle`` default to the settings' (the retry loosens both).
+        """
         if self.obstacles is None:
             raise MapError("IAL needs a map: call set_map first")
         s = self.settings
         grid = self.obstacles
-        max_outliers = min(s.max_outliers, max(int(angles.size) - 1, 0))
+        allowed = s.max_outliers if max_outliers is None else max_outliers
+        max_outliers = min(allowed, max(int(angles.size) - 1, 0))
         out, consistent, contractions, limited = pave(
             np.ascontiguousarray(boxes, dtype=np.float64),
             np.ascontiguousarray(angles, dtype=np.float64),
             np.ascontiguousarray(range_lo, dtype=np.float64),
             np.ascontiguousarray(range_hi, dtype=np.float64),
             max_outliers,
-            grid.sat,
+            grid.sat_any if unknown_is_obstacle else grid.sat,
             grid.free_sat,
             grid.certain_sat,
             int(s.free_space_samples),
