@@ -116,6 +116,10 @@ class LocalizerPlugin:
             a module-level function that imports the method when called.
         sensor: laser scans or camera images.
         bench_skip: bag-name glob -> reason, pairs ``rls_bench --all`` leaves out.
+        bench_skip_global: bag-name glob -> reason, pairs ``rls_bench --all`` leaves out in global mode
+            and single-scan global fixes only (tracking mode runs them).
+        bench_params: bag-name glob -> params file in ``config/``, read for those bags instead of
+            ``config/<name>.yaml`` (the first matching glob wins).
         outputs: extra output topics, for ``--help`` (``"~/boxes (visualization_msgs/MarkerArray)"``).
     """
 
@@ -125,6 +129,8 @@ class LocalizerPlugin:
     factory: Callable[[Any], Any]
     sensor: SensorKind = SensorKind.LASER
     bench_skip: Mapping[str, str] = field(default_factory=dict)
+    bench_skip_global: Mapping[str, str] = field(default_factory=dict)
+    bench_params: Mapping[str, str] = field(default_factory=dict)
     outputs: tuple[str, ...] = ()
 
     @property
@@ -184,9 +190,10 @@ def _create_ima(settings: ImaTrackerSettings) -> Any:
     return ImaTopoLocalizer(load_topomap(resolve_config_path(settings.topomap, "topomap")), settings)
 
 
-# SLAM maps of the real logs are mostly unknown space: a 180-degree scan facing it fits
-# almost any pose, so IAL's box list saturates (about 1 s an update) and never fixes.
-_IAL_REAL_LOG = "real 180-degree log with a mostly unknown SLAM map: boxes saturate, no fix (docs/ial.md)"
+# SLAM maps of the real logs are mostly unknown space: from the whole map IAL's box list
+# saturates and never fixes. Tracking works there with the SLAM parameters (docs/ial.md).
+_IAL_REAL_LOG = "real 180-degree log with a mostly unknown SLAM map: global boxes saturate, no fix (docs/ial.md)"
+_IAL_SLAM_PARAMS = "ial_localizer_slam.yaml"
 
 PLUGINS: dict[str, LocalizerPlugin] = {
     p.name: p
@@ -224,7 +231,8 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             "the whole map.",
             IALSettings,
             _create_ial,
-            bench_skip={"intel*": _IAL_REAL_LOG, "fr101*": _IAL_REAL_LOG, "orebro*": _IAL_REAL_LOG},
+            bench_skip_global={"intel*": _IAL_REAL_LOG, "fr101*": _IAL_REAL_LOG, "orebro*": _IAL_REAL_LOG},
+            bench_params={"intel*": _IAL_SLAM_PARAMS, "fr101*": _IAL_SLAM_PARAMS, "orebro*": _IAL_SLAM_PARAMS},
             outputs=("~/boxes (visualization_msgs/MarkerArray: each box, its heading range and the hull)",),
         ),
         LocalizerPlugin(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import os
@@ -470,6 +471,31 @@ def test_all_mode_pairs_camera_and_laser_localizers_with_their_bags(kidnap_bag, 
     assert summary["picky"]["skipped"] == "too large a map"
     assert summary["echo"]["correct_rate"] == 1.0
     assert "skipped: too large a map" in (tmp_path / "summary.md").read_text()
+
+
+def test_a_global_only_skip_still_runs_tracking_with_the_bags_own_params(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    base = echo_spec(truth, constant_offset)
+    spec = dataclasses.replace(base, skip_global={"room_*": "boxes saturate"},
+                               per_bag={"room_*": dataclasses.replace(base, params="echo_slam.yaml")})
+    summary = bench.run_benchmark([path], [spec], tmp_path / "g", isolate=False, plots=False, honour_skips=True)
+    assert summary["room_kidnap"]["echo"]["skipped"] == "boxes saturate (global mode)"
+    summary = bench.run_benchmark([path], [spec], tmp_path / "t", mode="tracking", isolate=False, plots=False,
+                                  honour_skips=True)
+    fields = summary["room_kidnap"]["echo"]
+    assert fields["correct_rate"] == 1.0 and fields["params"] == "echo_slam.yaml"
+    assert "params echo_slam.yaml" in (tmp_path / "t" / "summary.md").read_text()
+
+
+def test_ial_runs_the_real_logs_in_tracking_mode_only_with_the_slam_params():
+    spec = bench.registry_spec("ial_localizer")
+    for bag in ("intel", "fr101", "orebro_cv3of5"):
+        assert "saturate" in spec.skip_reason(bag, "global") and "saturate" in spec.skip_reason(bag, "global_fixes")
+        assert spec.skip_reason(bag, "tracking") is None
+        settings = spec.for_bag(bag).factory.args[1]
+        assert spec.for_bag(bag).params == "ial_localizer_slam.yaml" and not settings.unknown_is_obstacle
+    assert spec.for_bag("office_kidnap") is spec and spec.skip_reason("office_kidnap") is None
+    assert spec.factory.args[1].unknown_is_obstacle and spec.params is None
 
 
 def exit_at_once():

@@ -12,10 +12,13 @@ import math
 
 import numpy as np
 import pytest
+import slam_test_world
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcl_test_world import WAYPOINTS, _follow, office_map
 
+from robot_localization_suite import registry
+from robot_localization_suite.core.errors import SettingsError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.ial.kernels import contract_box, inmap_hull, obstacle_hull, pave
 from robot_localization_suite.core.ial.localizer import (
@@ -28,6 +31,7 @@ from robot_localization_suite.core.ial.localizer import (
 from robot_localization_suite.core.interval import angle_hull, compose_boxes, interval_cos, interval_mul, interval_sin
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import boxes_contain
+from robot_localization_suite.core.motion import OdometryMotionModel
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import LaserMount, Scan
 from robot_localization_suite.core.se2 import compose, wrap_angle
@@ -236,6 +240,101 @@ def test_a_slam_style_map_keeps_the_guarantee_with_a_one_cell_margin() -> None:
     assert checked > 300
 
 
+def _slam_params(**overrides) -> IALSettings:
+    """config/ial_localizer_slam.yaml, as rls_bench reads it for the real logs, with ``overrides``."""
+    _, settings = registry.plugin("ial_localizer").load_settings(
+        overrides, params_file=registry.config_dir() / "ial_localizer_slam.yaml")
+    assert isinstance(settings, IALSettings)
+    return settings
+
+
+@pytest.mark.parametrize("unknown_is_obstacle", [True, False])
+def test_a_reading_into_unknown_space_never_empties_the_true_pose_box(unknown_is_obstacle: bool) -> None:
+    # Readings through the window, the unmapped room's door and the wall's gap end in unknown space.
+    # Unknown cells as possible ends (the default): they need no outlier at all. Unknown space as an
+    # outlier (the SLAM config): they are counted, and max_outliers = outliers + that count is enough.
+    world, slam = slam_test_world.slam_world()
+    settings = _slam_params(unknown_is_obstacle=unknown_is_obstacle)
+    grid = ObstacleGrid(slam, margin=settings.map_margin, laser_in_free_cells=settings.laser_in_free_cells,
+                        unknown_is_obstacle=unknown_is_obstacle)
+    rng = np.random.default_rng(21)
+    truth = slam_test_world.drive(0.1)
+    angles = slam_test_world.ANGLES_180
+    exact = RayCaster(world, max_range=slam_test_world.RANGE_MAX).cast(truth, angles).astype(np.float64)
+    scratch, ok, top = np.empty((180, 12)), np.empty(180, dtype=np.bool_), np.empty((6, 181))
+    into_unknown = checked = 0
+    for pose, ranges in zip(truth, exact, strict=True):
+        keep = np.isfinite(ranges)
+        beams, distances = angles[keep], ranges[keep]
+        unexplained = slam_test_world.unexplained(slam, pose, beams, distances, settings.map_margin)
+        noisy = distances + rng.uniform(-slam_test_world.EPS, slam_test_world.EPS, distances.size)
+        outliers = rng.choice(distances.size, size=int(rng.integers(0, 4)), replace=False)
+        noisy[outliers] = rng.uniform(0.2, 9.0, outliers.size)  # readings no map explains
+        scan = Scan(0.0, beams, noisy.astype(np.float32).astype(np.float64), 0.05, slam_test_world.RANGE_MAX)
+        beam_angles, lo, hi = beam_intervals(scan, range_error=settings.range_error, max_beams=180)
+        budget = outliers.size + (0 if unknown_is_obstacle else unexplained)
+        for _ in range(5):
+            half = np.exp(rng.uniform(np.log([1e-3, 1e-3, 1e-4]), np.log([0.5, 0.5, 0.2])))
+            centre = pose + rng.uniform(-1.0, 1.0, 3) * half
+            box = np.array([centre[0] - half[0], centre[0] + half[0], centre[1] - half[1], centre[1] + half[1],
+                            centre[2] - half[2], centre[2] + half[2]])
+            consistent = contract_box(box, beam_angles, lo, hi, budget, grid.sat, grid.free_sat, grid.certain_sat,
+                                      settings.free_space_samples, slam.origin[0], slam.origin[1], slam.resolution,
+                                      settings.map_margin, scratch, ok, top)
+            assert consistent >= 0 and boxes_contain(box, pose), (pose, unexplained, budget)
+            checked += 1
+        into_unknown += unexplained > 0
+    assert checked >= 1000 and into_unknown > len(truth) // 2  # most scans do see unknown space
+
+
+def test_tracking_on_a_slam_like_map_keeps_the_truth_in_the_boxes() -> None:
+    # A 180-degree scanner on a map with unknown space behind its walls, a wall with a gap and a room
+    # never mapped; Thrun odometry within 4 sigma. With unknown cells as possible ends the guarantee
+    # holds on the whole drive; with the SLAM config (unknown space counts as an outlier) it holds while
+    # at most max_outliers readings of a scan end away from mapped walls, here the first 28 scans.
+    world, slam = slam_test_world.slam_world()
+    truth = slam_test_world.drive()
+    rng = np.random.default_rng(22)
+    odometry = slam_test_world.odometry(truth, rng)
+    scans = slam_test_world.scans(world, truth, rng)
+    for params, steps in ((_slam_params(unknown_is_obstacle=True), len(truth)), (_slam_params(), 28)):
+        localizer = IntervalLocalizer(params, slam)
+        localizer.on_odometry(0.0, odometry[0])
+        localizer.set_initial_pose(truth[0], np.diag([0.1, 0.1, math.radians(5.0)]) ** 2)
+        most_unexplained = 0
+        for k in range(steps):
+            localizer.on_odometry(0.1 * k, odometry[k])
+            estimate = localizer.on_scan(scans[k])
+            assert estimate is not None and boxes_contain(estimate.boxes, truth[k]), (k, params.unknown_is_obstacle)
+            assert not estimate.details["restarted"]
+            angles, lo, hi = beam_intervals(scans[k], range_error=params.range_error, max_beams=params.max_beams)
+            most_unexplained = max(most_unexplained, slam_test_world.unexplained(
+                slam, truth[k], angles, 0.5 * (lo + hi), params.map_margin - slam_test_world.EPS))
+        assert most_unexplained >= 5  # not vacuous: readings into unknown space in both runs
+        assert estimate.details["hull_width_x"] < 1.0 and estimate.details["hull_width_theta"] < math.radians(20)
+
+
+def test_a_scan_mostly_into_unknown_space_is_retried_with_unknown_cells_as_ends_not_restarted() -> None:
+    # A 6 m x 4 m map whose east half was never seen: facing it, every reading ends in unknown space.
+    data = np.full((80, 120), -1, dtype=np.int8)
+    data[:, :60] = 0
+    data[:3, :60] = data[-3:, :60] = data[:, :3] = 100
+    slam = GridMap(data, 0.05)
+    world = np.zeros((80, 120), dtype=np.int8)
+    world[:3, :] = world[-3:, :] = world[:, :3] = world[:, -3:] = 100
+    world[30:50, 90:100] = 100
+    truth = np.array([2.5, 2.0, 0.0])
+    ranges = RayCaster(GridMap(world, 0.05), max_range=10.0).cast(truth, slam_test_world.ANGLES_180)
+    scan = Scan(0.0, slam_test_world.ANGLES_180.copy(), ranges.astype(np.float64), 0.05, 10.0)
+    for retry, kept in ((24, True), (0, False)):
+        localizer = IntervalLocalizer(_slam_params(max_outliers_retry=retry), slam)
+        localizer.set_initial_pose(truth, np.diag([0.05, 0.05, 0.05]) ** 2)
+        estimate = localizer.on_scan(scan)
+        assert estimate.details["outliers_retried"] is kept and estimate.details["restarted"] is not kept
+        if kept:
+            assert boxes_contain(estimate.boxes, truth) and estimate.details["hull_width_x"] < 1.0
+
+
 def test_a_box_with_no_consistent_pose_contracts_to_empty(office, grid) -> None:
     rng = np.random.default_rng(6)
     truth = np.array([3.0, 4.5, 0.3])
@@ -266,6 +365,50 @@ def test_prediction_contains_the_true_pose_for_bounded_odometry_steps_short_and_
         box = np.array([[start[0], start[0], start[1], start[1], start[2], start[2]]])
         predicted = localizer.predict(box, [(previous, current)])
         assert boxes_contain(predicted, true_next), (start, true_next, predicted)
+
+
+class _ClippedNormal:
+    """A random stream whose standard normal draws stop at +-4: Thrun's Gaussian odometry within 4 sigma."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+
+    def normal(self, loc: float, scale: float, size: int) -> np.ndarray:
+        return np.clip(self.rng.normal(loc, scale, size), -4.0, 4.0)
+
+
+def test_prediction_contains_the_true_pose_for_thrun_odometry_within_4_sigma() -> None:
+    # The real-log bags' odometry (tools/carmen_to_bag.py): Thrun's model with variance scales alpha1..alpha4;
+    # std = sqrt(a1 rot^2 + a2 trans^2) <= sqrt(a1) |rot| + sqrt(a2) trans, so 4 sqrt(alpha) bound 4 sigma.
+    # Short steps with large rotations are the hard ones: the realised translation may come out negative.
+    alphas = (1.2e-3, 1e-4, 4e-4, 1e-4)
+    model = OdometryMotionModel(*alphas)
+    k = 4.0
+    settings = IALSettings(odom_relative_rotation=k * math.sqrt(alphas[0]),
+                           odom_rotation_per_translation=k * math.sqrt(alphas[1]),
+                           odom_relative_translation=k * math.sqrt(alphas[2]),
+                           odom_translation_per_rotation=k * math.sqrt(alphas[3]),
+                           odom_absolute_translation=0.0, odom_absolute_rotation=0.0)
+    localizer = IntervalLocalizer(settings)
+    rng = np.random.default_rng(17)
+    noise = _ClippedNormal(rng)
+    for _ in range(3000):
+        start = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-math.pi, math.pi)])
+        trans = [0.0, rng.uniform(0.0, 0.03), rng.uniform(0.0, 1.2)][rng.integers(0, 3)]
+        turn = rng.random() < 0.5  # else nearly straight: the noise then comes from the cross terms
+        rot1 = rng.uniform(-math.pi, math.pi) if turn else rng.uniform(-0.02, 0.02)
+        rot2 = rng.uniform(-1.0, 1.0) if turn else rng.uniform(-0.02, 0.02)
+        true_next = compose(start, np.array([trans * math.cos(rot1), trans * math.sin(rot1), wrap_angle(rot1 + rot2)]))
+        previous = rng.uniform(-20, 20, 3)
+        current = model.sample(previous[None, :], start, true_next, noise)[0]
+        box = np.array([[start[0], start[0], start[1], start[1], start[2], start[2]]])
+        assert boxes_contain(localizer.predict(box, [(previous, current)]), true_next), (start, true_next)
+
+
+def test_odometry_bounds_that_cannot_be_inverted_are_refused() -> None:
+    with pytest.raises(SettingsError, match="cannot be inverted"):
+        IALSettings(odom_relative_translation=0.5, odom_translation_per_rotation=2.0,
+                    odom_rotation_per_translation=0.5)
 
 
 def test_compose_boxes_is_outward_for_a_laser_mount() -> None:

@@ -28,12 +28,19 @@ from robot_localization_suite.core.settings import (
 )
 
 PLUGIN_NAMES = sorted(registry.PLUGINS)
+# Every packaged params file: config/<name>.yaml and the ones the benchmark reads for some bags.
+PARAMS_FILES = [(name, plugin.params_file().name) for name, plugin in sorted(registry.PLUGINS.items())] + [
+    (name, file) for name, plugin in sorted(registry.PLUGINS.items()) for file in sorted(set(plugin.bench_params.values()))
+]
 
 
-@pytest.mark.parametrize("name", PLUGIN_NAMES)
-def test_the_packaged_params_file_sets_exactly_the_plugins_parameters_with_their_types_and_ranges(name: str) -> None:
+@pytest.mark.parametrize(("name", "file"), PARAMS_FILES)
+def test_the_packaged_params_file_sets_exactly_the_plugins_parameters_with_their_types_and_ranges(
+    name: str, file: str
+) -> None:
     plugin = registry.plugin(name)
-    section = yaml.safe_load(plugin.params_file().read_text())[name]["ros__parameters"]
+    path = registry.config_dir() / file
+    section = yaml.safe_load(path.read_text())[name]["ros__parameters"]
     declared = {p.name: p for cls in (registry.NodeSettings, plugin.settings) for p in parameters(cls)}
     flat = {k: v for k, v in _flatten(section).items()}
     assert set(flat) <= set(declared), sorted(set(flat) - set(declared))
@@ -43,7 +50,7 @@ def test_the_packaged_params_file_sets_exactly_the_plugins_parameters_with_their
         assert type(value) is param.kind, key
         if param.low is not None:
             assert param.low <= value <= param.high, key
-    node_settings, settings = plugin.load_settings()
+    node_settings, settings = plugin.load_settings(params_file=path)
     assert isinstance(node_settings, registry.NodeSettings) and isinstance(settings, plugin.settings)
 
 

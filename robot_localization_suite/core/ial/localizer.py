@@ -70,7 +70,14 @@ class ObstacleGrid:
         MapError: the map is too large for the arithmetic error budget.
     """
 
-    def __init__(self, grid_map: GridMap, *, margin: float = 0.0, laser_in_free_cells: bool = True) -> None:
+    def __init__(
+        self,
+        grid_map: GridMap,
+        *,
+        margin: float = 0.0,
+        laser_in_free_cells: bool = True,
+        unknown_is_obstacle: bool = True,
+    ) -> None:
         x_min, x_max, y_min, y_max = grid_map.extent
         if max(abs(x_min), abs(x_max), abs(y_min), abs(y_max)) > MAX_COORDINATE:
             raise MapError(
@@ -79,8 +86,13 @@ class ObstacleGrid:
         self.grid_map = grid_map
         self.origin = (float(grid_map.origin[0]), float(grid_map.origin[1]))
         self.resolution = float(grid_map.resolution)
+        # Where a beam may end: occupied cells, and unknown ones unless they count as outliers
+        # (sat_any keeps them, for the retry of a scan that leaves no box).
         self.obstacle = grid_map.occupied_mask | grid_map.unknown_mask
-        self.sat = summed_area_table(self.obstacle)
+        self.sat_any = summed_area_table(self.obstacle)
+        if not unknown_is_obstacle:
+            self.obstacle = grid_map.occupied_mask
+        self.sat = self.sat_any if unknown_is_obstacle else summed_area_table(self.obstacle)
         # Where the laser may stand: free cells, or any cell not marked occupied.
         self.free_sat = summed_area_table(grid_map.free_mask if laser_in_free_cells else ~grid_map.occupied_mask)
         # Cells surely inside an obstacle: occupied cells eroded by twice the map margin.
@@ -137,17 +149,29 @@ def odometry_step_bounds(
     absolute_translation: float,
     relative_rotation: float,
     absolute_rotation: float,
+    rotation_per_translation: float = 0.0,
+    translation_per_rotation: float = 0.0,
 ) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float], bool]:
     """Bounds of the true ``rot1, trans, rot2`` of one odometry step, and whether its direction is known.
 
-    :meth:`OdometryMotionModel.bounds` states that each measured component lies
-    within ``true +- (relative * |true| + absolute)`` (the simulator's bounded
-    odometry draws it so). Around the *measured* value ``m`` this inverts to
-    ``m +- (relative * |m| + absolute) / (1 - relative)``. The decomposition of
-    the measured step is computed without :func:`odometry_delta`'s 1 cm
-    threshold; when the true translation may be under that threshold, the true
-    decomposition has ``rot1 = 0`` whatever the direction of travel, so the
-    direction is reported unknown (the heading bound ``rot1 + rot2`` still holds).
+    The stated bound (docs/ial.md, "Odometry"): the odometry realises the true
+    decomposition (``rot1 = 0`` below 1 cm, as :func:`odometry_delta`) with errors
+
+    - ``|e_rot_i| <= relative_rotation |rot_i| + rotation_per_translation trans + absolute_rotation``,
+    - ``|e_trans| <= relative_translation trans + translation_per_rotation (|rot1| + |rot2|)
+      + absolute_translation``.
+
+    The simulator's bounded odometry draws each component so (without the cross
+    terms). Thrun's and nav2's Gaussian model scales its noise by the distance of
+    a rotation to 0 or pi, never more than ``|rot|``, and its realised translation
+    may come out negative (the measured step then points backwards, ``rot1`` and
+    ``rot2`` shifted by pi); ``|rot_i| <= |measured_i| + |e_rot_i|`` then bounds the
+    noise scale, and ``trans <= measured + |e_trans|`` holds either way. Solving
+    the two bounds for the errors gives the intervals below; with the cross terms
+    at 0 they are ``m +- (relative |m| + absolute) / (1 - relative)``. The step is
+    decomposed without the 1 cm threshold; when the true translation may be
+    under 1 cm its direction is reported unknown (the true ``rot1`` is then 0
+    whatever the direction of travel; ``rot1 + rot2`` still bounds the heading).
     """
     previous = np.asarray(previous, dtype=np.float64)
     current = np.asarray(current, dtype=np.float64)
@@ -155,20 +179,26 @@ def odometry_step_bounds(
     trans = math.hypot(dx, dy)
     rot1 = float(angle_difference(math.atan2(dy, dx), previous[2])) if trans > 0.0 else 0.0
     rot2 = float(angle_difference(angle_difference(current[2], previous[2]), rot1))
+    size1, size2 = abs(rot1), abs(rot2)
+    # |e_trans| bound from the linear system of the two stated bounds (settings.validate: denominator > 0).
+    rho = 1.0 / (1.0 - relative_rotation)
+    trans_error = (
+        relative_translation * trans
+        + translation_per_rotation * rho * (size1 + size2)
+        + 2.0 * translation_per_rotation * rho * (rotation_per_translation * trans + absolute_rotation)
+        + absolute_translation
+    ) / (1.0 - relative_translation - 2.0 * translation_per_rotation * rho * rotation_per_translation)
+    trans_max = trans + trans_error
 
-    def around(value: float, relative: float, absolute: float) -> tuple[float, float]:
-        half = (relative * abs(value) + absolute) / (1.0 - relative) + OUTWARD
+    def rotation_bounds(value: float, size: float) -> tuple[float, float]:
+        half = (relative_rotation * size + rotation_per_translation * trans_max + absolute_rotation) / (
+            1.0 - relative_rotation
+        ) + OUTWARD
         return value - half, value + half
 
-    trans_bounds = around(trans, relative_translation, absolute_translation)
-    trans_bounds = (max(trans_bounds[0], 0.0), trans_bounds[1])
+    trans_bounds = (max(trans - trans_error - OUTWARD, 0.0), trans_max + OUTWARD)
     direction_known = trans_bounds[0] >= _MIN_TRANSLATION_FOR_HEADING
-    return (
-        around(rot1, relative_rotation, absolute_rotation),
-        trans_bounds,
-        around(rot2, relative_rotation, absolute_rotation),
-        direction_known,
-    )
+    return rotation_bounds(rot1, size1), trans_bounds, rotation_bounds(rot2, size2), direction_known
 
 
 @dataclass
@@ -210,7 +240,10 @@ class IntervalLocalizer:
 
     def set_map(self, grid_map: GridMap) -> None:
         self.obstacles = ObstacleGrid(
-            grid_map, margin=self.settings.map_margin, laser_in_free_cells=self.settings.laser_in_free_cells
+            grid_map,
+            margin=self.settings.map_margin,
+            laser_in_free_cells=self.settings.laser_in_free_cells,
+            unknown_is_obstacle=self.settings.unknown_is_obstacle,
         )
         self.reinitialize()
 
@@ -280,16 +313,26 @@ class IntervalLocalizer:
             return self._estimate(scan.stamp, boxes, consistent, details, status, contracted=False)
 
         result = self.iterate(boxes, angles, range_lo, range_hi)
+        contractions = result.contractions
         status = None
+        details["outliers_retried"] = False
+        if len(result.boxes) == 0 and tracking and s.max_outliers_retry > s.max_outliers:
+            # More outliers than max_outliers in this scan, readings into unknown space, or a kidnapping:
+            # the same boxes under the looser bound (and unknown cells as possible ends).
+            details["outliers_retried"] = True
+            result = self.iterate(boxes, angles, range_lo, range_hi, max_outliers=s.max_outliers_retry,
+                                  unknown_is_obstacle=True)
+            contractions += result.contractions
         if len(result.boxes) == 0 and tracking:
             # Section 3.2: an empty list means kidnapping (or lost): restart over the whole map.
             details["restarted"] = True
             result = self.iterate(self.obstacles.whole_map_box(), angles, range_lo, range_hi)
+            contractions += result.contractions
             status = LocalizerStatus.LOST
         if len(result.boxes) == 0:
             status = LocalizerStatus.LOST
             details["restarted"] = True
-        details["contractions"] = result.contractions
+        details["contractions"] = contractions
         details["limited"] = result.limited
         self.boxes = result.boxes if len(result.boxes) else None
         return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status, contracted=True)
@@ -337,6 +380,8 @@ class IntervalLocalizer:
                 absolute_translation=s.odom_absolute_translation,
                 relative_rotation=s.odom_relative_rotation,
                 absolute_rotation=s.odom_absolute_rotation,
+                rotation_per_translation=s.odom_rotation_per_translation,
+                translation_per_rotation=s.odom_translation_per_rotation,
             )
             if direction_known:
                 travel_lo = boxes[:, 4] + rot1[0] - OUTWARD
@@ -373,20 +418,27 @@ class IntervalLocalizer:
         angles: NDArray[np.float64],
         range_lo: NDArray[np.float64],
         range_hi: NDArray[np.float64],
+        *,
+        max_outliers: int | None = None,
+        unknown_is_obstacle: bool | None = None,
     ) -> IterationResult:
-        """Lines 2-12 of Algorithm 1 on already predicted boxes: contract, bisect, keep non-empty."""
+        """Lines 2-12 of Algorithm 1 on already predicted boxes: contract, bisect, keep non-empty.
+
+        ``max_outliers`` and ``unknown_is_obstacle`` default to the settings' (the retry loosens both).
+        """
         if self.obstacles is None:
             raise MapError("IAL needs a map: call set_map first")
         s = self.settings
         grid = self.obstacles
-        max_outliers = min(s.max_outliers, max(int(angles.size) - 1, 0))
+        allowed = s.max_outliers if max_outliers is None else max_outliers
+        max_outliers = min(allowed, max(int(angles.size) - 1, 0))
         out, consistent, contractions, limited = pave(
             np.ascontiguousarray(boxes, dtype=np.float64),
             np.ascontiguousarray(angles, dtype=np.float64),
             np.ascontiguousarray(range_lo, dtype=np.float64),
             np.ascontiguousarray(range_hi, dtype=np.float64),
             max_outliers,
-            grid.sat,
+            grid.sat_any if unknown_is_obstacle else grid.sat,
             grid.free_sat,
             grid.certain_sat,
             int(s.free_space_samples),

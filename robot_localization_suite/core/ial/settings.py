@@ -22,6 +22,9 @@ class IALSettings(Settings):
                                  unit="m", low=0.0, high=10.0)
     max_outliers: int = setting(5, "n_o: readings allowed to break range_error (paper 5.2: 5 of 36)",
                                 low=0, high=100_000)
+    max_outliers_retry: int = setting(0, "when no box is left, the scan is tried again on the same boxes with this "
+                                      "many outliers allowed before restarting from the whole map; 0: no retry, "
+                                      "as the paper (ours)", low=0, high=100_000)
     max_beams: int = setting(36, "valid readings used per scan, evenly spaced (paper 5.2: 36)", low=1, high=100_000)
     min_box_width_xy: float = setting(0.05, "xi for x and y: bisect while a box is wider (ours)", unit="m",
                                       low=0.0, low_open=True, high=100.0)
@@ -31,6 +34,9 @@ class IALSettings(Settings):
                                 "cell for SLAM maps", unit="m", low=0.0, high=10.0, read_only=True)
     free_space_samples: int = setting(9, "points before each beam's end that must not be inside certain obstacles; "
                                       "0: off (ours)", low=0, high=64)
+    unknown_is_obstacle: bool = setting(True, "a beam may end in an unknown cell (sound on any map); false: a beam "
+                                        "ending in unknown space, away from every occupied cell, is one of the "
+                                        "max_outliers (an assumption; docs/ial.md) (ours)", read_only=True)
     laser_in_free_cells: bool = setting(True, "the laser stands in a cell the map marks free; false: in any cell not "
                                         "marked occupied (ours)", read_only=True)
     odom_relative_translation: float = setting(0.1, "odometry bound: translation error per step, relative part "
@@ -41,6 +47,12 @@ class IALSettings(Settings):
                                             low=0.0, high=0.99)
     odom_absolute_rotation: float = setting(math.radians(1.0), "odometry bound: rotation error per step, absolute "
                                             "part", unit="rad", low=0.0, high=3.14)
+    odom_rotation_per_translation: float = setting(0.0, "odometry bound: rotation error per step per metre of "
+                                                   "translation (the alpha2 term of Thrun's model; ours)",
+                                                   unit="rad/m", low=0.0, high=10.0)
+    odom_translation_per_rotation: float = setting(0.0, "odometry bound: translation error per step per radian of "
+                                                   "rotation (the alpha4 term of Thrun's model; ours)",
+                                                   unit="m/rad", low=0.0, high=10.0)
     contraction_passes: int = setting(3, "forward-backward passes per box at most", low=1, high=100)
     min_contraction_gain: float = setting(0.05, "stop the passes when no width shrank by more than this fraction",
                                           low=0.0, high=0.99)
@@ -70,4 +82,17 @@ class IALSettings(Settings):
         if self.max_outliers >= self.max_beams:
             raise SettingsError(
                 f"IALSettings.max_outliers ({self.max_outliers!r}) must be below max_beams ({self.max_beams!r})"
+            )
+        if self.max_outliers_retry and not self.max_outliers < self.max_outliers_retry < self.max_beams:
+            raise SettingsError(
+                f"IALSettings.max_outliers_retry ({self.max_outliers_retry!r}) must be 0 or between max_outliers "
+                f"({self.max_outliers!r}) and max_beams ({self.max_beams!r})"
+            )
+        coupling = (self.odom_relative_translation + 2.0 * self.odom_translation_per_rotation
+                    * self.odom_rotation_per_translation / (1.0 - self.odom_relative_rotation))
+        if coupling >= 1.0:
+            raise SettingsError(
+                "IALSettings odometry bounds cannot be inverted: odom_relative_translation + 2 "
+                "odom_translation_per_rotation odom_rotation_per_translation / (1 - odom_relative_rotation) "
+                f"= {coupling!r} must be below 1"
             )

@@ -12,6 +12,7 @@ Options: ``rls_bench --help``; what a run does: ``docs/benchmark.md``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 from collections.abc import Sequence
@@ -25,7 +26,7 @@ from ...core.errors import BagError, LocalizationSuiteError
 from .cv import cv_modes, find_split_indexes, run_cv
 from .cv_tables import append_cv_section, cv_tables
 from .run import run_benchmark, run_global_fixes
-from .specs import LocalizerSpec, registry_spec
+from .specs import registry_spec
 from .tables import append_section, summary_table
 
 __all__ = ["main", "discover_bags", "default_bags_dir"]
@@ -132,7 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name in names:
             spec = registry_spec(name, overrides.get(name))
             if name in skips:
-                spec = LocalizerSpec(spec.name, spec.factory, spec.uses_camera, spec.mount, {**spec.skip, **skips[name]})
+                spec = dataclasses.replace(spec, skip={**spec.skip, **skips[name]})
             specs.append(spec)
         summary = None
         if bags and args.global_fixes:

@@ -245,23 +245,24 @@ def run_cv(
                 for spec in specs:
                     if mode == "global_fixes" and spec.name in no_global_fix:
                         continue
-                    skip = reason or (spec.skip_reason(block.name) if honour_skips else None)
+                    skip = reason or (spec.skip_reason(block.name, mode) if honour_skips else None)
                     if skip is not None or reference is None:
                         entries[spec.name] = {"skipped": skip}
                         continue
+                    run_spec = spec.for_bag(block.name)
                     entry: dict[str, Any] = {}
                     for kind in MAP_KINDS:
                         source = str(block.maps[kind])
                         if mode == "global_fixes":
                             fields, scored = global_fix_pair(
-                                reference, spec, maps[kind], source, every=every, isolate=isolate,
+                                reference, run_spec, maps[kind], source, every=every, isolate=isolate,
                                 max_seconds=max_seconds, child_progress=child_progress, coverage=coverage)
                             if fields is None:
                                 no_global_fix.add(spec.name)
                                 break
                         else:
                             fields, scored = replay_pair(
-                                reference, spec, maps[kind], source, mode=mode, isolate=isolate,
+                                reference, run_spec, maps[kind], source, mode=mode, isolate=isolate,
                                 max_seconds=max_seconds, progress=progress, child_progress=child_progress,
                                 coverage=coverage, plot_dir=out / "plots" / mode / block.name if plots else None,
                                 plot_name=f"{spec.name}_{kind}")

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ...core import metrics
 from ...core.grid_map import GridMap
+from ...core.interval import angle_hull
 from ...core.localizer import Estimate, LocalizerStatus
 from .isolation import rss_mb
 from .prepare import prepare_localizer, prepare_scan
@@ -87,6 +88,7 @@ class RunRecord:
     containment: list[bool] | None = None
     containment_stamps: list[float] | None = None
     containment_lost: list[bool] | None = None
+    box_hull_widths: list[tuple[float, float, float]] | None = None  # x [m], y [m], theta [rad] of each output's boxes
     place_correct: list[bool] | None = None
     corrected_heading_error_deg: list[float] | None = None
 
@@ -115,6 +117,13 @@ def _method_checks(record: RunRecord, estimate: Estimate, base_truth: NDArray[np
         record.containment.append(metrics.boxes_contain(estimate.boxes, base_truth))
         record.containment_stamps.append(float(estimate.stamp))
         record.containment_lost.append(estimate.status is LocalizerStatus.LOST)
+        boxes = np.asarray(estimate.boxes, dtype=np.float64).reshape(-1, 3, 2)
+        if len(boxes):
+            record.box_hull_widths = record.box_hull_widths if record.box_hull_widths is not None else []
+            theta_lo, theta_hi = angle_hull(boxes[:, 2, 0], boxes[:, 2, 1])
+            record.box_hull_widths.append((float(boxes[:, 0, 1].max() - boxes[:, 0, 0].min()),
+                                           float(boxes[:, 1, 1].max() - boxes[:, 1, 0].min()),
+                                           float(theta_hi - theta_lo)))
     if estimate.place is not None:
         record.place_correct = record.place_correct if record.place_correct is not None else []
         record.place_correct.append(metrics.nearest_node_is_place(estimate.place.xy, estimate.place.node_xy, base_truth))

@@ -31,19 +31,20 @@ LOG = logging.getLogger("rls_bench")
 
 
 def _plan(
-    references: Sequence[BagReference], specs: Sequence[LocalizerSpec], *, honour_skips: bool
+    references: Sequence[BagReference], specs: Sequence[LocalizerSpec], *, honour_skips: bool, mode: str
 ) -> Iterator[tuple[BagReference, LocalizerSpec, str | None]]:
-    """Yield ``(reference, spec, skip_reason or None)`` for every pair."""
+    """Yield ``(reference, spec for that bag, skip_reason or None)`` for every pair."""
     for reference in references:
         for spec in specs:
+            reason = spec.skip_reason(reference.name, mode) if honour_skips else None
             if spec.uses_camera and not reference.has_camera:
                 yield reference, spec, f"no {IMAGE_TOPIC} in the bag"
             elif not spec.uses_camera and not reference.has_scan:
                 yield reference, spec, f"no {SCAN_TOPIC} in the bag"
-            elif honour_skips and spec.skip_reason(reference.name):
-                yield reference, spec, spec.skip_reason(reference.name)
+            elif reason:
+                yield reference, spec, reason
             else:
-                yield reference, spec, None
+                yield reference, spec.for_bag(reference.name), None
 
 
 def replay_pair(
@@ -81,6 +82,8 @@ def replay_pair(
     if scores is not None and scan_coverage is not None:
         fields.update(run_coverage_fields(scores))
     fields["map"] = map_source
+    if spec.params is not None:
+        fields["params"] = spec.params
     fields["wall_s"] = round(time.perf_counter() - started, 1)
     print(f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}", file=sys.stderr, flush=True)
     if plot_dir is not None:
@@ -118,6 +121,8 @@ def global_fix_pair(
     if result.error:
         return {"mode": "global_fixes", "error": result.error}, None
     fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
+    if spec.params is not None:
+        fields["params"] = spec.params
     scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
     scores = global_fix_scores(result, scan_coverage)
     if scan_coverage is not None:
@@ -157,7 +162,7 @@ def run_benchmark(
             LOG.warning("bag %s has no %s: reporting timing only", reference.name, TRUTH_TOPIC)
             print(f"rls_bench: bag {reference.name} has no {TRUTH_TOPIC}; reporting timing only", file=sys.stderr)
     coverage = CoverageCache()
-    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
+    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode=mode):
         if skip is not None:
             summary[reference.name][spec.name] = {"mode": mode, "skipped": skip}
             continue
@@ -195,7 +200,7 @@ def run_global_fixes(
     references = [load_reference(b) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
     coverage = CoverageCache()
-    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips):
+    for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode="global_fixes"):
         if skip is not None or spec.uses_camera:
             continue
         grid_map, map_source = resolve_map(reference, map_yaml)

@@ -7,6 +7,7 @@ the injection point for localizers from elsewhere (the tests' echo double).
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
 import functools
 from collections.abc import Callable, Mapping
@@ -32,6 +33,9 @@ class LocalizerSpec:
         uses_camera: fed ``/camera/image_raw`` instead of ``/scan``.
         mount: laser pose in the base frame (the adapter's mounting offset).
         skip: bag-name glob -> reason, pairs ``--all`` leaves out.
+        skip_global: the same, in global mode and global fixes only.
+        params: the params file the settings were read from, if not the packaged one (reported).
+        per_bag: bag-name glob -> the spec to use for those bags instead (other params).
     """
 
     name: str
@@ -39,12 +43,25 @@ class LocalizerSpec:
     uses_camera: bool = False
     mount: LaserMount = field(default_factory=LaserMount)
     skip: Mapping[str, str] = field(default_factory=dict)
+    skip_global: Mapping[str, str] = field(default_factory=dict)
+    params: str | None = None
+    per_bag: Mapping[str, LocalizerSpec] = field(default_factory=dict)
 
-    def skip_reason(self, bag_name: str) -> str | None:
-        for pattern, reason in self.skip.items():
-            if fnmatch.fnmatch(bag_name, pattern):
-                return str(reason)
+    def skip_reason(self, bag_name: str, mode: str = "global") -> str | None:
+        """Why ``--all`` leaves this bag out in ``mode`` (global, tracking, global_fixes), or None."""
+        skips = [self.skip] + ([self.skip_global] if mode in ("global", "global_fixes") else [])
+        for table in skips:
+            for pattern, reason in table.items():
+                if fnmatch.fnmatch(bag_name, pattern):
+                    return str(reason) + (f" ({mode} mode)" if table is self.skip_global else "")
         return None
+
+    def for_bag(self, bag_name: str) -> LocalizerSpec:
+        """The spec to run on ``bag_name``: the first ``per_bag`` glob that matches, else this one."""
+        for pattern, spec in self.per_bag.items():
+            if fnmatch.fnmatch(bag_name, pattern):
+                return spec
+        return self
 
 
 def _plugin_factory(name: str, settings: Any) -> Any:
@@ -54,6 +71,9 @@ def _plugin_factory(name: str, settings: Any) -> Any:
 def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LocalizerSpec:
     """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``.
 
+    Bags matching the plugin's ``bench_params`` globs get a spec whose settings come from that
+    params file instead (``overrides`` still on top), reached with :meth:`LocalizerSpec.for_bag`.
+
     Raises:
         SettingsError: an override names no parameter of the localizer (a typo would silently do nothing).
     """
@@ -62,11 +82,19 @@ def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Loca
                if key not in {p.name for p in parameters(registry.NodeSettings)}]
     if unknown:
         raise SettingsError(f"{name} has no parameter {', '.join(map(repr, unknown))} (see {name} --help)")
-    node_settings, settings = plugin.load_settings(overrides)
-    return LocalizerSpec(
-        name=name,
-        factory=functools.partial(_plugin_factory, name, settings),
-        uses_camera=plugin.uses_camera,
-        mount=node_settings.mount,
-        skip=dict(plugin.bench_skip),
-    )
+
+    def spec(params_file: str | None) -> LocalizerSpec:
+        path = registry.config_dir() / params_file if params_file is not None else None
+        node_settings, settings = plugin.load_settings(overrides, params_file=path)
+        return LocalizerSpec(
+            name=name,
+            factory=functools.partial(_plugin_factory, name, settings),
+            uses_camera=plugin.uses_camera,
+            mount=node_settings.mount,
+            skip=dict(plugin.bench_skip),
+            skip_global=dict(plugin.bench_skip_global),
+            params=params_file,
+        )
+
+    per_bag = {pattern: spec(params_file) for pattern, params_file in plugin.bench_params.items()}
+    return dataclasses.replace(spec(None), per_bag=per_bag)

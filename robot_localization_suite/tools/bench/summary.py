@@ -73,6 +73,10 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
             np.asarray(record.containment_stamps), np.asarray(record.containment_lost), reference.kidnap_stamps
         )
         fields["containment_rate_after_restart"] = _rate(list(np.asarray(record.containment)[after_restart]))
+    if record.box_hull_widths:
+        widths = np.median(np.asarray(record.box_hull_widths), axis=0)
+        fields["box_hull_median"] = {"x_m": round(float(widths[0]), 3), "y_m": round(float(widths[1]), 3),
+                                     "theta_deg": round(float(np.rad2deg(widths[2])), 2)}
     if record.place_correct is not None:
         fields["correct_place_rate"] = _rate(record.place_correct)
     if record.corrected_heading_error_deg is not None:

@@ -68,7 +68,8 @@ _GLOBAL_COLUMNS = (
     ("fix_ms_p95", "fix p95 [ms]"),
     ("peak_rss_mb", "peak RSS [MB]"),
 )
-_SPECIFIC = ("containment_rate", "containment_rate_after_restart", "correct_place_rate", "heading_error_when_corrected_deg")
+_SPECIFIC = ("containment_rate", "containment_rate_after_restart", "box_hull_median", "correct_place_rate",
+             "heading_error_when_corrected_deg")
 
 
 def _is_global_fixes(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> bool:
@@ -92,6 +93,8 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
             for key in _SPECIFIC:
                 if key in fields:
                     notes.append(f"{key} {_fmt(fields[key])}")
+            if fields.get("params"):
+                notes.append(f"params {fields['params']}")
             if fields.get("truncated"):
                 notes.append("truncated by --max-seconds")
             if fields.get("recovered"):
