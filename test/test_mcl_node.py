@@ -192,3 +192,62 @@ def test_the_cores_python_log_reaches_the_nodes_ros_log() -> None:
     assert seen == [("warn", "IR cache x.npz is unreadable; rebuilding it"), ("info", "relearning for 180 deg")]
     logging.getLogger("robot_localization_suite.core").warning("after the node is gone")
     assert len(seen) == 2
+
+
+def test_slow_work_runs_off_the_executor_with_progress_in_the_diagnostics() -> None:
+    """A map from the topic is set up in a worker thread: meanwhile the node drops scans, answers its
+    services and publishes INITIALIZING with the percent done of the work's progress bars."""
+    import threading
+    from types import SimpleNamespace
+
+    rclpy = pytest.importorskip("rclpy")
+    from std_srvs.srv import Empty
+
+    from robot_localization_suite.core.progress import ReportingBar
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=5, seed=1)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=2000"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    node.trigger_configure()
+    node.trigger_activate()
+    diagnostics: list = []
+    published: list = []
+    node.diagnostics_pub = SimpleNamespace(publish=diagnostics.append)  # type: ignore[assignment]
+    node.publish = lambda output, *_: published.append(output) if output is not None else None  # type: ignore[method-assign]
+    release, halfway = threading.Event(), threading.Event()
+    adapter = node.adapter
+    set_map = adapter.set_map
+
+    def slow_set_map(grid_map: GridMap) -> None:  # the map setup of a large map, two steps of four done
+        bar = ReportingBar(total=4, disable=True)
+        bar.update(2)
+        halfway.set()
+        release.wait(60)
+        bar.close()
+        set_map(grid_map)
+
+    adapter.set_map = slow_set_map  # type: ignore[method-assign]
+    try:
+        node._on_map(conversions.grid_map_to_msg(office, 0.0))
+        assert node._work.busy and not adapter.has_map  # the callback returned before the setup ended
+        assert halfway.wait(60)
+        node._watch_inputs()
+        status = diagnostics[-1].status[0]
+        values = {kv.key: kv.value for kv in status.values}
+        assert status.message == LocalizerStatus.INITIALIZING.value and values["progress_percent"] == "50.0"
+        scan = run.scans[0]
+        node._on_scan(conversions.scan_to_msg(scan.stamp, "laser", angle_min=scan.angles[0],
+                                              angle_increment=scan.angles[1] - scan.angles[0], ranges=scan.ranges,
+                                              range_min=scan.range_min, range_max=scan.range_max))
+        assert not published  # dropped while busy
+        node._on_nomotion(Empty.Request(), Empty.Response())  # services still answer
+        release.set()
+        assert node._work.wait(60)
+        node._watch_inputs()
+        assert not node._work.busy and adapter.has_map and node._map_received
+    finally:
+        release.set()
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -8,13 +8,23 @@ whose output is a log (``rls_bench``'s child runs set ``TQDM_DISABLE=1`` for
 them) must be able to silence every bar at once without knowing each
 localizer's setting. Passing ``disable=progress_disabled(show)`` gives both.
 The variable is read at each call, so it may be set after tqdm was imported.
+
+:class:`ReportingBar` is a tqdm bar whose progress a node reads from another thread
+(:func:`current_progress`) to report it in its diagnostics while it precomputes.
 """
 
 from __future__ import annotations
 
 import os
+import threading
+from typing import Any
 
-__all__ = ["PROGRESS_DISABLE_ENV", "progress_disabled"]
+from tqdm.auto import tqdm
+
+__all__ = ["PROGRESS_DISABLE_ENV", "ReportingBar", "current_progress", "progress_disabled"]
+
+_LOCK = threading.Lock()
+_OPEN_BARS: list[ReportingBar] = []
 
 #: tqdm's own switch, honoured here too (any value but "", "0", "false", "no", "off").
 PROGRESS_DISABLE_ENV = "TQDM_DISABLE"
@@ -27,3 +37,39 @@ def progress_disabled(show: bool) -> bool:
     """
     value = os.environ.get(PROGRESS_DISABLE_ENV, "").strip().lower()
     return (not show) or value not in ("", "0", "false", "no", "off")
+
+
+class ReportingBar(tqdm):
+    """A tqdm bar whose progress another thread can read (:func:`current_progress`), shown or not.
+
+    A node runs its precomputation in a worker thread and reports the percentage in its
+    diagnostics; tqdm does not count while disabled, so the bar keeps its own count.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.done = 0.0
+        with _LOCK:
+            _OPEN_BARS.append(self)
+
+    def update(self, n: float | None = 1) -> bool | None:
+        self.done += 1.0 if n is None else float(n)
+        return super().update(n)
+
+    def close(self) -> None:
+        with _LOCK:
+            if self in _OPEN_BARS:
+                _OPEN_BARS.remove(self)
+        super().close()
+
+
+def current_progress() -> float | None:
+    """The fraction done [0, 1] of the open bars, nested ones within their parent's current step; None if none is open."""
+    with _LOCK:
+        bars = [bar for bar in _OPEN_BARS if bar.total]
+    if not bars:
+        return None
+    fraction = 0.0
+    for bar in reversed(bars):  # innermost first: a nested bar is one step of the bar that opened before it
+        fraction = min(1.0, (bar.done + fraction) / float(bar.total))
+    return fraction

@@ -35,7 +35,8 @@ from ..core.settings import Settings, from_params, parameters
 from ..registry import LocalizerPlugin, NodeSettings
 from ..ros import nav2, tf
 from ..ros.adapter import AdapterOutput, LocalizerAdapter, ThrottledLog
-from ..ros.conversions import initial_pose_from_msg, stamp_to_seconds
+from ..ros.background import BackgroundWork
+from ..ros.conversions import initial_pose_from_msg, progress_diagnostics, stamp_to_seconds
 from ..ros.extras import Extra
 from ..ros.params import declare_settings, parameter_values
 from ..ros.qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
@@ -129,6 +130,9 @@ class LocalizerNode(LifecycleNode):
         # Kept across cleanup, as nav2_amcl keeps last_published_pose_: (pose, covariance) of the last estimate.
         self.last_pose: tuple[np.ndarray, np.ndarray] | None = None
         self._pending_initial_pose: tuple[np.ndarray, np.ndarray | None] | None = None
+        # Slow work (a new map, precomputation for the scanner) runs here, off the executor.
+        self._work = BackgroundWork(self._log)
+        self._pending_map: Any = None
         self.get_logger().info(f"{self.get_name()} unconfigured: waiting for the configure transition")
 
     # -- parameters -------------------------------------------------------------------------
@@ -375,8 +379,44 @@ class LocalizerNode(LifecycleNode):
         if self.node_settings.first_map_only and self._map_received:
             self.throttled("info", "first_map_only", "ignoring a new map: first_map_only is set")
             return
-        if self.adapter.on_map_msg(msg):
+        grid_map = self.adapter.map_from_msg(msg)
+        if grid_map is None or self.adapter.is_current_map(grid_map):
+            self._map_received = self._map_received or grid_map is not None
+            return
+        if self._work.busy:
+            self._pending_map = grid_map  # the newest map wins; it is set up after the running job
+            self.throttled("info", "map_queued", f"map queued until {self._work.what} ends")
+            return
+        self._start_map_setup(grid_map)
+
+    def _start_map_setup(self, grid_map: Any) -> None:
+        """Set up a map from the topic in the background (a new map may mean a new precomputation)."""
+        adapter = self.adapter
+        assert adapter is not None
+
+        def received() -> None:
             self._map_received = True
+
+        self._work.start(f"setting up the {grid_map.width} x {grid_map.height} map", lambda: adapter.set_map(grid_map),
+                         then=received)
+
+    def _after_work(self) -> None:
+        """On the executor: report a job that ended, then set up a map that came meanwhile."""
+        self._work.poll()
+        if not self._work.busy and self._pending_map is not None and self.adapter is not None:
+            grid_map, self._pending_map = self._pending_map, None
+            if not self.adapter.is_current_map(grid_map):
+                self._start_map_setup(grid_map)
+
+    def _busy(self, what: str) -> bool:
+        """Whether background work runs (inputs are dropped meanwhile, with a throttled note)."""
+        self._after_work()
+        if not self._work.busy:
+            return False
+        percent = self._work.percent()
+        done = "" if percent is None else f", {percent:.0f} %"
+        self.throttled("info", "busy", f"{self._work.what} ({self._work.elapsed_s():.0f} s{done}): {what} dropped")
+        return True
 
     def _on_scan(self, msg: LaserScan) -> None:
         if not self._accepting("sensor", "scan"):
@@ -387,10 +427,16 @@ class LocalizerNode(LifecycleNode):
             if mount is None:
                 return
             self.adapter.set_mount(mount)
+        if self._busy("scans"):
+            return
+        if self.adapter.preparation_due(msg):
+            adapter = self.adapter
+            self._work.start(f"precomputing {self.plugin.name} for this scanner", lambda: adapter.prepare(msg))
+            return
         self._when_odometry_reaches(msg, self.adapter.on_scan_msg)
 
     def _on_image(self, msg: Image) -> None:
-        if not self._accepting("sensor", "image"):
+        if not self._accepting("sensor", "image") or self._busy("images"):
             return
         assert self.adapter is not None
         self._when_odometry_reaches(msg, self.adapter.on_image_msg)
@@ -421,7 +467,7 @@ class LocalizerNode(LifecycleNode):
                 self.publish(update(msg), stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
-        if self._accepting("odometry", "odometry"):
+        if self._accepting("odometry", "odometry") and not self._busy("odometry"):
             assert self.adapter is not None
             self.adapter.on_odom_msg(msg)
             self._odometry_arrived()
@@ -430,7 +476,7 @@ class LocalizerNode(LifecycleNode):
         """Odometry from /tf (odom_source tf): ``odom -> base`` at the stamp of each transform on the way."""
         ns = self.node_settings
         stored = self.tf_buffer.add_message(msg, static=False)
-        if not stored or not self._accepting("odometry", "odometry"):
+        if not stored or not self._accepting("odometry", "odometry") or self._busy("odometry"):
             return
         on_the_way = self.tf_buffer.chain(ns.odom_frame_id, ns.base_frame_id)
         if on_the_way is None:
@@ -516,7 +562,12 @@ class LocalizerNode(LifecycleNode):
         return response
 
     def _watch_inputs(self) -> None:
-        """A warning (every scan_timeout) for each input that has been silent for scan_timeout since activation."""
+        """INITIALIZING with the progress while background work runs; a warning (every scan_timeout) for
+        each input that has been silent for scan_timeout since activation."""
+        self._after_work()
+        if self._work.busy and self.active:
+            self.diagnostics_pub.publish(progress_diagnostics(self.get_clock().now().nanoseconds * 1e-9,
+                                                              self.get_name(), self._work.what, self._work.percent()))
         now, timeout = time.monotonic(), self.node_settings.scan_timeout
         ns = self.node_settings
         checks = [("sensor", self.sensor_sub.topic_name, "image" if self.plugin.uses_camera else "scan")]

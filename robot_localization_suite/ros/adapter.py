@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
-from ..core.localizer import CameraLocalizer, Estimate, Localizer
+from ..core.localizer import CameraLocalizer, Estimate, Localizer, Preparer
 from ..core.scan import LaserMount
 from ..core.se2 import compose, inverse, relative
 from . import conversions
@@ -206,6 +206,7 @@ class LocalizerAdapter:
         self.localizer = localizer
         # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
         self._laser: Localizer | None = localizer if isinstance(localizer, Localizer) else None
+        self._prepared_key: tuple[Any, ...] | None = None  # the scanner and map prepare() last ran for
         self._camera: CameraLocalizer | None = localizer if isinstance(localizer, CameraLocalizer) else None
         self.max_candidates = max_candidates
         self.node_name = node_name
@@ -254,18 +255,28 @@ class LocalizerAdapter:
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
-        try:
-            grid_map = conversions.grid_map_from_msg(msg)
-        except MapError as exc:
-            self.log("error", "map", f"ignoring map message: {exc}")
+        grid_map = self.map_from_msg(msg)
+        if grid_map is None:
             return False
         self.set_map(grid_map)
         return True
 
+    def map_from_msg(self, msg: Any) -> Any:
+        """The ``GridMap`` of an OccupancyGrid, or None (logged) when it is unusable."""
+        try:
+            return conversions.grid_map_from_msg(msg)
+        except MapError as exc:
+            self.log("error", "map", f"ignoring map message: {exc}")
+            return None
+
+    def is_current_map(self, grid_map: Any) -> bool:
+        """Whether ``grid_map`` is the map in use already (``set_map`` would keep it)."""
+        return self._current_map is not None and _same_map(self._current_map, grid_map)
+
     def set_map(self, grid_map: Any) -> None:
         if not hasattr(self.localizer, "set_map"):
             return
-        if self._current_map is not None and _same_map(self._current_map, grid_map):
+        if self.is_current_map(grid_map):
             # map_yaml and the map topic often carry the same map; relearning it is wasted work.
             self._info("debug", "map unchanged: keeping the current one")
             return
@@ -354,6 +365,33 @@ class LocalizerAdapter:
         if laser is None:
             raise TypeError(f"{type(self.localizer).__name__} is not a laser Localizer: it cannot take scans")
         return self._run(lambda: laser.on_scan(scan))
+
+    def preparation_due(self, msg: Any) -> bool:
+        """Whether the localizer would precompute for this scan's scanner (``Preparer``) and has not yet."""
+        if not (self.has_map and isinstance(self.localizer, Preparer)):
+            return False
+        if self._preparation_key(msg) == self._prepared_key:
+            return False
+        try:
+            scan = conversions.scan_from_msg(msg)
+        except ScanError:
+            return False  # on_scan_msg says why, throttled
+        return bool(scan.hit_mask.any())  # a scan with no hit is skipped, not prepared for
+
+    def prepare(self, msg: Any) -> None:
+        """Run the localizer's precomputation for this scan's scanner (in a worker thread, by the node).
+
+        Raises:
+            ScanError: the scan cannot be read (the next one is tried).
+        """
+        key = self._preparation_key(msg)
+        if isinstance(self.localizer, Preparer):
+            self.localizer.prepare(conversions.scan_from_msg(msg))
+        self._prepared_key = key
+
+    def _preparation_key(self, msg: Any) -> tuple[Any, ...]:
+        return (id(self._current_map), len(msg.ranges), float(msg.angle_min), float(msg.angle_increment),
+                float(msg.range_min), float(msg.range_max))
 
     def on_image_msg(self, msg: Any) -> AdapterOutput | None:
         try:

@@ -272,3 +272,18 @@ def estimate_to_diagnostics(estimate: Estimate, node_name: str, update_ms: float
     msg.header = _header(estimate.stamp, "")
     msg.status = [status]
     return msg
+
+
+def progress_diagnostics(seconds: float, node_name: str, what: str, percent: float | None) -> DiagnosticArray:
+    """INITIALIZING diagnostics while a node precomputes: what it does and the percent done."""
+    status = DiagnosticStatus()
+    status.level = _LEVELS[LocalizerStatus.INITIALIZING]
+    status.name = f"{node_name}: localization"
+    status.message = LocalizerStatus.INITIALIZING.value
+    status.hardware_id = node_name
+    values = {"preparing": what, "progress_percent": "" if percent is None else f"{percent:.1f}"}
+    status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+    msg = DiagnosticArray()
+    msg.header = _header(seconds, "")
+    msg.status = [status]
+    return msg
