@@ -265,3 +265,19 @@ def test_the_fingerprint_ignores_float32_noise_in_the_resolution_but_not_the_con
     moved = data.copy()
     moved[3, 5] = 100
     assert GridMap(moved, 0.05, (1.0, -2.0)).fingerprint() != from_yaml.fingerprint()
+
+
+def test_open_unknown_is_the_unknown_space_a_laser_could_see_into() -> None:
+    data = np.full((12, 12), -1, dtype=np.int8)
+    data[2:10, 2:10] = 100  # a closed room: walls 2 cells thick...
+    data[4:8, 4:8] = 0  # ...around free floor
+    data[5, 5] = -1  # an unexplored cell on the floor
+    closed = GridMap(data, 0.1, (0.0, 0.0))
+    mask, off_map = closed.open_unknown()
+    assert mask[5, 5] and mask.sum() == 1  # behind the closed walls is not open, nor off the map
+    assert not off_map
+    opened = data.copy()
+    opened[5, 2:4] = -1  # a gap in the wall: the outside is seen through it
+    mask, off_map = GridMap(opened, 0.1, (0.0, 0.0)).open_unknown()
+    assert mask[0, 0] and mask[5, 2] and off_map
+    assert not mask[opened == 100].any() and not mask[4, 4]  # known cells never count

@@ -190,7 +190,7 @@ def test_measurement_recovery_sampling_injects_poses_that_fit_the_scan(office: G
     def injected_fit(sampling: str) -> float:
         localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, recovery_sampling=sampling), office)
         beams = localizer._select_beams(run.scans[0])
-        poses = localizer._recovery_poses(300, beams)
+        poses = localizer._recovery_poses(300, beams, better_than=-np.inf)
         assert len(poses) == 300 and np.all(office.is_free(poses[:, :2]))
         return float(np.mean(localizer._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=10.0)))
 
@@ -307,6 +307,33 @@ def test_the_beam_model_and_the_omnidirectional_model_track_too(office: GridMap,
     assert errors[:, 0].max() < 0.3 and np.sqrt(np.mean(errors[:, 0] ** 2)) < 0.1
 
 
+def _unexplored_room_map(office: GridMap) -> GridMap:
+    """The office with its north-east room unexplored (unknown cells), as a map built from other runs."""
+    data = office.data.copy()
+    res = office.resolution
+    data[int(6.1 / res) : int(9.85 / res), int(6.1 / res) : int(15.85 / res)] = -1
+    return GridMap(data, res, office.origin)
+
+
+@pytest.mark.parametrize("model", ["partial_map", "nav2"])
+def test_tracking_through_a_room_the_map_has_not_explored(office: GridMap, run: Drive, model: str) -> None:
+    # The drive enters the north-east room, unknown on the map. nav2's likelihood field scores its walls by
+    # the distance to the nearest *mapped* obstacle and drags the cloud away; reading unknown space as
+    # unknown (unknown_occupancy) and skipping the beams the map cannot explain keeps the track.
+    nav2 = {"unknown_occupancy": 0.0, "do_beamskip": False, "recovery_requires_better": False}
+    localizer = MonteCarloLocalizer(MclSettings(**(nav2 if model == "nav2" else {})), _unexplored_room_map(office))
+    localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
+    outputs = _replay(localizer, run)
+    errors = _errors(outputs, run)
+    in_room = np.array([run.truth[k, 0] > 6.1 and run.truth[k, 1] > 6.1 for k, _ in outputs])
+    assert in_room.sum() > 10  # the test drives through the unexplored room
+    if model == "partial_map":
+        assert errors[:, 0].max() < 0.25 and errors[:, 1].max() < 0.1
+        assert any(estimate.details.get("skipped_beams", 0) > 0 for _, estimate in outputs)
+    else:
+        assert errors[:, 0].max() > 1.0  # what the defaults fix
+
+
 # -- sensor models ------------------------------------------------------------------------------
 def _wall_map() -> GridMap:
     """4 m x 2 m at 0.1 m, one wall filling the column of cells at x in [3.0, 3.1)."""
@@ -328,6 +355,40 @@ def test_the_likelihood_field_peaks_at_the_true_pose_and_floors_off_the_map() ->
     off = model.log_likelihood(np.array([[1.0, 1.0, math.pi / 2]]), angles, ranges, max_range=10.0)
     assert off[0] == pytest.approx(model.floor_log_likelihood(10.0))
     assert off[0] == pytest.approx(math.log(0.5 * math.exp(-4.0 / 0.08) + 0.05))
+
+
+def test_with_a_partial_map_unknown_space_scores_as_a_half_likely_obstacle() -> None:
+    data = np.zeros((20, 40), dtype=np.int8)
+    data[:, 30] = 100
+    data[:, :10] = -1  # x < 1.0 unexplored
+    model = LikelihoodFieldModel(GridMap(data, 0.1, (0.0, 0.0)), z_hit=0.5, z_rand=0.5, sigma_hit=0.2,
+                                 max_distance=2.0, unknown_occupancy=0.5)
+    angles, ranges = np.array([math.pi]), np.array([1.45])
+    pose = np.array([[2.0, 1.0, 0.0]])  # the beam ends at x = 0.55, in unknown space, 2.5 m from the wall
+    far = model.log_likelihood(pose, angles, ranges, max_range=10.0)
+    partial = model.log_likelihood(pose, angles, ranges, max_range=10.0, partial_map=True)
+    assert far[0] == pytest.approx(model.floor_log_likelihood(10.0))  # nav2: by the distance to the wall
+    assert partial[0] == pytest.approx(math.log(0.5 * 0.5 + 0.05), abs=1e-6)
+    # off the map is unknown too; a mapped hit keeps its score
+    off = model.log_likelihood(pose, np.array([math.pi / 2]), np.array([5.0]), max_range=10.0, partial_map=True)
+    assert off[0] == pytest.approx(math.log(0.5 * 0.5 + 0.05), abs=1e-6)
+    hit = model.log_likelihood(pose, np.array([0.0]), np.array([1.05]), max_range=10.0, partial_map=True)
+    assert hit[0] == pytest.approx(math.log(0.5 + 0.05), abs=1e-6)
+    # free known space is unchanged: no slope that pulls end points towards the unknown
+    free = np.array([[1.5, 1.0, 0.0]])
+    assert model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0, partial_map=True)[0] == \
+        pytest.approx(model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0)[0])
+
+
+def test_beam_agreement_is_the_weight_of_the_poses_whose_end_point_meets_an_obstacle() -> None:
+    model = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0)
+    poses = np.array([[1.0, 1.0, 0.0], [2.0, 1.0, 0.0], [1.0, 1.0, math.pi]])
+    weights = np.array([0.6, 0.3, 0.1])
+    # a 2.05 m beam ahead ends on the wall from x = 1 (heading 0), 1 m beyond it from x = 2, off the map backwards
+    agreement = model.beam_agreement(poses, weights, np.array([0.0]), np.array([2.05]), distance=0.5)
+    assert agreement[0] == pytest.approx(0.6)
+    agreement = model.beam_agreement(poses, weights, np.array([0.0]), np.array([1.05]), distance=0.5)
+    assert agreement[0] == pytest.approx(0.3)  # only the pose at x = 2 now ends on the wall
 
 
 def test_the_beam_model_prefers_the_pose_whose_rays_match() -> None:
@@ -371,3 +432,22 @@ def test_clusters_separate_distant_groups_and_join_across_plus_minus_pi() -> Non
     assert len(set(labels[:200])) == 1 and len(set(labels[200:])) == 1 and labels[0] != labels[200]
     mean, covariance = weighted_pose_statistics(near_pi, np.ones(200))
     assert abs(abs(mean[2]) - math.pi) < 0.05 and covariance[2, 2] < 0.01
+
+
+def test_a_rival_cluster_with_ambiguous_weight_rules_out_localized(office: GridMap, run: Drive) -> None:
+    """LOCALIZED means the filter stands behind one pose: a second hypothesis holding
+    ``ambiguous_cluster_weight`` of the weight makes it AMBIGUOUS, however compact the first is."""
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, random_seed=0), office)
+    localizer.set_initial_pose(run.truth[0], np.diag([1e-4, 1e-4, 1e-4]))
+    here = localizer.particles.copy()
+    rival = here.copy()
+    rival[:, 0] += 3.0
+    localizer.particles = np.vstack([here, rival])
+
+    def status(rival_share: float) -> LocalizerStatus:
+        weights = np.concatenate([np.full(len(here), (1.0 - rival_share) / len(here)),
+                                  np.full(len(rival), rival_share / len(rival))])
+        return localizer._estimate(0.0, weights, 1.0, 60, 1000.0).status
+
+    assert status(0.1) is LocalizerStatus.LOCALIZED
+    assert status(0.3) is LocalizerStatus.AMBIGUOUS

@@ -94,6 +94,7 @@ def test_a_nav2_amcl_section_carries_over_and_lists_what_is_not_used() -> None:
         alpha1: 0.2
         base_frame_id: "base_footprint"
         do_beamskip: false
+        save_pose_rate: 0.5
         max_particles: 2000
         robot_model_type: "nav2_amcl::OmniMotionModel"
         update_min_d: 1
@@ -104,11 +105,12 @@ def test_a_nav2_amcl_section_carries_over_and_lists_what_is_not_used() -> None:
     settings = from_params(MclSettings, nav2)
     assert settings.alpha1 == 0.2 and settings.max_particles == 2000 and settings.omnidirectional
     assert settings.update_min_d == 1.0 and isinstance(settings.update_min_d, float)
+    assert not settings.do_beamskip  # nav2's false overrides this package's default
     # the frames and the initial pose are every localizer node's (registry.NodeSettings)
     node = from_params(registry.NodeSettings, nav2)
     assert node.set_initial_pose and node.initial_pose == (1.5, -2.0, 0.5) and node.base_frame_id == "base_footprint"
     not_used = set(unknown_params(MclSettings, nav2)) & set(unknown_params(registry.NodeSettings, nav2))
-    assert sorted(not_used) == ["do_beamskip", "initial_pose.z"]
+    assert sorted(not_used) == ["initial_pose.z", "save_pose_rate"]
     with pytest.raises(SettingsError, match="parameter laser_model_type must be one of likelihood_field, beam"):
         from_params(MclSettings, {"laser_model_type": "likelihood_field_prob"})
     with pytest.raises(SettingsError, match="parameter max_particles must be an integer, got 2.5"):

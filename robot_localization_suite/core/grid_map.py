@@ -120,6 +120,29 @@ class GridMap:
     def unknown_mask(self) -> NDArray[np.bool_]:
         return ~(self.occupied_mask | self.free_mask)
 
+    def open_unknown(self) -> tuple[NDArray[np.bool_], bool]:
+        """Unknown space a laser on the map could see into, and whether the space off the map is.
+
+        Unknown cells count when they connect, through unknown cells (4-neighbours), to a free cell; the
+        space off the map when a free or such an unknown cell lies on the map's border. Unknown space
+        sealed off by obstacles, such as behind a drawn map's closed outer walls, does not.
+        """
+        key = "open_unknown"
+        if key not in self._cache:
+            unknown = self.unknown_mask.astype(np.uint8)
+            count, labels = cv2.connectedComponents(unknown, connectivity=4)
+            cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+            next_to_free = cv2.dilate(self.free_mask.astype(np.uint8), cross).astype(bool) & (unknown > 0)
+            open_labels = np.zeros(count, dtype=bool)
+            open_labels[np.unique(labels[next_to_free])] = True
+            open_labels[0] = False  # label 0: the known cells
+            mask = open_labels[labels]
+            open_or_free = mask | self.free_mask
+            border = np.concatenate([open_or_free[0], open_or_free[-1], open_or_free[:, 0], open_or_free[:, -1]])
+            self._cache[key] = (mask, bool(border.any()))
+        mask, off_map = self._cache[key]
+        return mask, off_map
+
     def is_free(self, xy: ArrayLike) -> NDArray[np.bool_]:
         """Whether world points ``(..., 2)`` fall in free cells (off-map is not free)."""
         cells = self.world_to_cell(xy)

@@ -158,11 +158,15 @@ class MonteCarloLocalizer:
             )
         else:
             self._sensor = LikelihoodFieldModel(
-                grid_map, z_hit=s.z_hit, z_rand=s.z_rand, sigma_hit=s.sigma_hit, max_distance=s.laser_likelihood_max_dist
+                grid_map, z_hit=s.z_hit, z_rand=s.z_rand, sigma_hit=s.sigma_hit, max_distance=s.laser_likelihood_max_dist,
+                unknown_occupancy=s.unknown_occupancy,
             )
         self._free_mask = ~grid_map.occupied_mask
         # Load the compiled kernels now (map setup), not in the first update.
         self._sensor.log_likelihood(np.zeros((1, 3)), np.zeros(1), np.ones(1), max_range=10.0)
+        if isinstance(self._sensor, LikelihoodFieldModel) and s.do_beamskip:
+            self._sensor.beam_agreement(np.zeros((1, 3)), np.ones(1), np.zeros(1), np.ones(1),
+                                        distance=s.beam_skip_distance)
         if had_map and self._pending is None:
             last = self.last_estimate
             if last is not None and last.status == LocalizerStatus.LOCALIZED:
@@ -256,7 +260,13 @@ class MonteCarloLocalizer:
         self.w_fast = 0.0
         self._fit_slow = _RunningAverage(self.settings.recovery_alpha_slow)
         self._fit_fast = _RunningAverage(self.settings.recovery_alpha_fast)
+        # the same averages of the fit over every beam, skipped ones too, for the status
+        self._scan_fit_slow = _RunningAverage(self.settings.recovery_alpha_slow)
+        self._scan_fit_fast = _RunningAverage(self.settings.recovery_alpha_fast)
+        self._scan_fit = 0.0
         self._ever_localized = False
+        self._compact = False
+        self._trusted = False  # the last update was LOCALIZED: its scan fit held
 
     def _select_beams(self, scan: Scan) -> _Beams | None:
         """Valid beams of ``scan``, ``max_beams`` of them evenly spaced; None if there is none."""
@@ -312,26 +322,80 @@ class MonteCarloLocalizer:
                 high = middle
         return max(low, 1e-3)
 
+    def _scan_log_likelihood(self, poses: NDArray[np.float64], beams: _Beams) -> NDArray[np.float64]:
+        """Per pose, the summed log-likelihood of the beams; a converged filter reads unknown space as unknown."""
+        assert self._sensor is not None
+        if isinstance(self._sensor, LikelihoodFieldModel):
+            return self._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=beams.max_range,
+                                               partial_map=self._converged())
+        return self._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=beams.max_range)
+
+    def _converged(self) -> bool:
+        """Whether the filter has converged (nav2 skips beams only then): at the last update, the heaviest
+        cluster held most of the weight, compactly. A spread cloud reads unknown space as nav2 does, so
+        that global localization is not drawn into the map's unexplored parts."""
+        return self._compact
+
+    def _skip_unexplained_beams(self, beams: _Beams) -> tuple[_Beams, _Beams | None]:
+        """nav2's beam skipping: set aside the beams that few particles place near a mapped obstacle.
+
+        Only while the filter has converged (as nav2). A beam is skipped when the particles whose end
+        point lies within ``beam_skip_distance`` of an obstacle hold less than ``beam_skip_threshold``
+        of the weight (an obstacle the map does not have); when more than ``beam_skip_error_threshold``
+        of the beams would go, the filter is more likely wrong than the map, and every beam is kept.
+        Returns the kept beams and the skipped ones (None when none is).
+        """
+        s = self.settings
+        if not (s.do_beamskip and self._converged() and isinstance(self._sensor, LikelihoodFieldModel)
+                and len(beams.angles)):
+            return beams, None
+        agreement = self._sensor.beam_agreement(self.particles, self.weights, beams.angles, beams.ranges,
+                                                distance=s.beam_skip_distance)
+        keep = agreement >= s.beam_skip_threshold
+        skipped = int(len(keep) - keep.sum())
+        if skipped == 0 or skipped == len(keep) or skipped > s.beam_skip_error_threshold * len(keep):
+            return beams, None  # nothing to skip, or (nav2) the filter rather than the map is likely wrong
+        return (_Beams(beams.angles[keep], beams.ranges[keep], beams.max_range),
+                _Beams(beams.angles[~keep], beams.ranges[~keep], beams.max_range))
+
     def _update(self, stamp: float, beams: _Beams) -> Estimate:
         s = self.settings
         assert self._sensor is not None and self.grid_map is not None
-        beam_count = len(beams.angles)
-        log_likelihood = self._sensor.log_likelihood(self.particles, beams.angles, beams.ranges, max_range=beams.max_range)
+        kept, skipped = self._skip_unexplained_beams(beams)
+        beam_count = len(kept.angles)
+        log_likelihood = self._scan_log_likelihood(self.particles, kept)
         floor = self._sensor.floor_log_likelihood(beams.max_range)
-        log_likelihood[~self._pose_is_possible(self.particles)] = beam_count * floor
+        impossible = ~self._pose_is_possible(self.particles)
+        log_likelihood[impossible] = beam_count * floor
         temper = min(1.0, s.effective_beams / beam_count)
         temper *= self._adaptive_temper(temper * log_likelihood)
         self.log_weights = self.log_weights + temper * log_likelihood
         weights = normalize_log_weights(self.log_weights)
 
-        # Augmented MCL: posterior-weighted geometric-mean per-beam likelihood (docs/mcl.md).
+        # Augmented MCL: posterior-weighted geometric-mean per-beam likelihood (docs/mcl.md), over the
+        # beams that weighted the particles, as nav2; it drives the injection.
         fit = float((weights * np.exp(log_likelihood / beam_count)).sum())
         self._fit_slow.update(fit)
         self._fit_fast.update(fit)
         self.w_slow, self.w_fast = self._fit_slow.value, self._fit_fast.value
+        # The status judges the fit over every beam, the skipped ones too: a kidnapping must not hide
+        # behind beam skipping (docs/mcl.md, "Partial maps").
+        all_beams = log_likelihood
+        scan_fit = fit
+        if skipped is not None:
+            all_beams = log_likelihood + self._scan_log_likelihood(self.particles, skipped)
+            all_beams[impossible] = len(beams.angles) * floor
+            scan_fit = float((weights * np.exp(all_beams / len(beams.angles))).sum())
+        self._scan_fit_slow.update(scan_fit)
+        self._scan_fit_fast.update(scan_fit)
+        self._scan_fit = scan_fit
 
         effective = float(1.0 / np.sum(weights * weights))  # effective sample size
-        estimate = self._estimate(stamp, weights, fit, beam_count, effective)
+        estimate = self._estimate(stamp, weights, fit, len(beams.angles), effective)
+        if s.do_beamskip:
+            skipped_count = 0 if skipped is None else len(skipped.angles)
+            estimate = replace(estimate, details={**estimate.details, "skipped_beams": skipped_count,
+                                                  "scan_fit": round(scan_fit, 5)})
 
         self._updates_since_resample += 1
         # Selective resampling (docs/mcl.md): only when the weights have degenerated, or
@@ -340,7 +404,7 @@ class MonteCarloLocalizer:
                       or effective < s.resample_effective_fraction * len(weights))
         if self._updates_since_resample >= s.resample_interval and (degenerate or self._injection_fraction() > 0.0):
             self._updates_since_resample = 0
-            next_count, injected, bins = self._resample(weights, beams)
+            next_count, injected, bins = self._resample(weights, beams, float(all_beams.max()))
             estimate = replace(estimate, details={**estimate.details, "particles_next": next_count,
                                                   "injected": injected, "kld_bins": bins})
         self.counters.updates += 1
@@ -366,9 +430,14 @@ class MonteCarloLocalizer:
 
         std_xy = math.sqrt(max(float(np.linalg.eigvalsh(covariance[:2, :2])[-1]), 0.0))
         std_yaw = math.sqrt(max(float(covariance[2, 2]), 0.0))
-        compact = best_weight >= 0.5 and effective >= s.localized_min_effective_particles and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
-        fit_holds = self.w_slow <= 0.0 or self.w_fast >= s.lost_fit_ratio * self.w_slow
-        if compact and fit_holds:
+        tight = best_weight >= 0.5 and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
+        self._compact = tight
+        compact = tight and effective >= s.localized_min_effective_particles
+        # The fit holds on average and for this scan (a kidnapping drops it at once; w_fast follows slowly).
+        scan_slow, scan_fast = self._scan_fit_slow.value, self._scan_fit_fast.value
+        fit_holds = scan_slow <= 0.0 or min(scan_fast, self._scan_fit) >= s.lost_fit_ratio * scan_slow
+        # A rival cluster with ambiguous_cluster_weight is a second hypothesis: no LOCALIZED beside it.
+        if compact and fit_holds and second_weight < s.ambiguous_cluster_weight:
             status = LocalizerStatus.LOCALIZED
             self._ever_localized = True
         elif second_weight >= s.ambiguous_cluster_weight:
@@ -377,6 +446,7 @@ class MonteCarloLocalizer:
             status = LocalizerStatus.LOST
         else:
             status = LocalizerStatus.INITIALIZING
+        self._trusted = status is LocalizerStatus.LOCALIZED
 
         reported = _heaviest_first(weights, s.max_reported_particles)
 
@@ -399,8 +469,14 @@ class MonteCarloLocalizer:
             },
         )
 
-    def _recovery_poses(self, count: int, beams: _Beams) -> NDArray[np.float64]:
-        """``count`` poses for Augmented-MCL injection (``recovery_sampling``)."""
+    def _recovery_poses(self, count: int, beams: _Beams, better_than: float) -> NDArray[np.float64]:
+        """At most ``count`` poses for Augmented-MCL injection (``recovery_sampling``).
+
+        With ``recovery_requires_better``, while the last update was LOCALIZED (its scan fit held),
+        only draws that explain the scan better than ``better_than`` (the best particle's
+        log-likelihood) are kept: a scan the map explains poorly at the true pose is no reason to
+        replace particles by worse ones. Once the fit collapses (a kidnapping) every draw counts.
+        """
         assert self.grid_map is not None and self._sensor is not None
         s = self.settings
         if s.recovery_sampling == "uniform" or count == 0:
@@ -409,8 +485,10 @@ class MonteCarloLocalizer:
         # resetting), the pool capped at max_particles to bound the cost of one update
         pool = max(count, min(count * s.recovery_candidates, s.max_particles))
         candidates = self.grid_map.sample_free_poses(pool, self.rng)
-        scores = self._sensor.log_likelihood(candidates, beams.angles, beams.ranges, max_range=beams.max_range)
+        scores = self._scan_log_likelihood(candidates, beams)
         best = np.argpartition(-scores, count - 1)[:count]
+        if s.recovery_requires_better and self._trusted:
+            best = best[scores[best] > better_than]
         return candidates[best]
 
     def _injection_fraction(self) -> float:
@@ -418,7 +496,7 @@ class MonteCarloLocalizer:
         inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0.0 else 0.0
         return inject if inject >= self.settings.recovery_min_injection else 0.0
 
-    def _resample(self, weights: NDArray[np.float64], beams: _Beams) -> tuple[int, int, int]:
+    def _resample(self, weights: NDArray[np.float64], beams: _Beams, best_score: float) -> tuple[int, int, int]:
         """KLD-sized low-variance resampling with Augmented-MCL injection; returns (count, injected, bins)."""
         s = self.settings
         assert self.grid_map is not None
@@ -443,10 +521,14 @@ class MonteCarloLocalizer:
                 break
             batch = min(s.max_particles, 4 * batch)
         injected = int(self.rng.binomial(count, inject)) if inject > 0.0 else 0
-        kept = low_variance_resample(weights, count - injected, self.rng)
-        particles = self.particles[kept]
+        particles = self.particles[low_variance_resample(weights, count - injected, self.rng)]
         if injected:
-            particles = np.vstack([particles, self._recovery_poses(injected, beams)])
+            recovered = self._recovery_poses(injected, beams, best_score)
+            if len(recovered) < injected:  # fewer draws beat the particles: the rest are resampled
+                extra = self.particles[low_variance_resample(weights, injected - len(recovered), self.rng)]
+                particles = np.vstack([particles, extra])
+            injected = len(recovered)
+            particles = np.vstack([particles, recovered])
             self.counters.injected_particles += injected
         self.particles = particles
         self.log_weights = np.zeros(len(particles))

@@ -62,6 +62,31 @@ def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam
         out[p] = total
 
 
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _agreement_kernel(near, origin_x, origin_y, inverse_resolution, poses, weights, beam_x, beam_y, out):
+    height, width = near.shape
+    for b in range(beam_x.shape[0]):
+        out[b] = 0.0
+    for p in range(poses.shape[0]):
+        x = poses[p, 0]
+        y = poses[p, 1]
+        c = math.cos(poses[p, 2])
+        s = math.sin(poses[p, 2])
+        for b in range(beam_x.shape[0]):
+            ex = x + c * beam_x[b] - s * beam_y[b]
+            ey = y + s * beam_x[b] + c * beam_y[b]
+            ix = int(math.floor((ex - origin_x) * inverse_resolution))
+            iy = int(math.floor((ey - origin_y) * inverse_resolution))
+            if ix >= 0 and iy >= 0 and ix < width and iy < height and near[iy, ix]:
+                out[b] += weights[p]
+
+
+def _beam_offsets(angles: ArrayLike, ranges: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    angles_arr = np.asarray(angles, dtype=np.float64).reshape(-1)
+    ranges_arr = np.asarray(ranges, dtype=np.float64).reshape(-1)
+    return (np.ascontiguousarray(ranges_arr * np.cos(angles_arr)), np.ascontiguousarray(ranges_arr * np.sin(angles_arr)))
+
+
 def field_log_likelihood(
     table: NDArray[np.float32],
     resolution: float,
@@ -84,10 +109,7 @@ def field_log_likelihood(
         ``(P,)`` sums.
     """
     poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
-    angles_arr = np.asarray(angles, dtype=np.float64).reshape(-1)
-    ranges_arr = np.asarray(ranges, dtype=np.float64).reshape(-1)
-    beam_x = np.ascontiguousarray(ranges_arr * np.cos(angles_arr))
-    beam_y = np.ascontiguousarray(ranges_arr * np.sin(angles_arr))
+    beam_x, beam_y = _beam_offsets(angles, ranges)
     out = np.empty(poses_arr.shape[0], dtype=np.float64)
     _field_sum_kernel(
         np.ascontiguousarray(table, dtype=np.float32),
@@ -112,6 +134,11 @@ class LikelihoodFieldModel:
         z_rand: weight of the uniform random-reading component (nav2 ``z_rand``).
         sigma_hit: standard deviation of the hit Gaussian [m] (nav2 ``sigma_hit``).
         max_distance: cap on the endpoint-to-obstacle distance [m] (nav2 ``laser_likelihood_max_dist``).
+        unknown_occupancy: probability that an unknown cell (or a point off the map) holds an obstacle,
+            as the hit Gaussian sees it: with ``partial_map=True``, an end point in open unknown space
+            (``GridMap.open_unknown``) scores at least ``unknown_occupancy`` of a mapped hit, one value
+            for all of it (docs/mcl.md, "Partial maps"); without, and in unknown space sealed off by
+            walls, it scores by its distance to the nearest mapped obstacle, as nav2 does.
     """
 
     def __init__(
@@ -122,6 +149,7 @@ class LikelihoodFieldModel:
         z_rand: float,
         sigma_hit: float,
         max_distance: float,
+        unknown_occupancy: float = 0.0,
     ) -> None:
         _check_weight("z_hit", z_hit)
         _check_weight("z_rand", z_rand)
@@ -129,34 +157,49 @@ class LikelihoodFieldModel:
             raise ValueError(f"z_hit + z_rand must be positive, got {z_hit!r} + {z_rand!r}")
         _check_positive("sigma_hit", sigma_hit)
         _check_positive("max_distance", max_distance)
+        if not 0.0 <= unknown_occupancy <= 1.0:
+            raise ValueError(f"unknown_occupancy must be in [0, 1], got {unknown_occupancy!r}")
         self.grid_map = grid_map
         self.z_hit = float(z_hit)
         self.z_rand = float(z_rand)
         self.sigma_hit = float(sigma_hit)
         self.max_distance = float(max_distance)
+        self.unknown_occupancy = float(unknown_occupancy)
         distance = np.minimum(grid_map.distance_field(), np.float32(self.max_distance)).astype(np.float64)
-        self._hit_term = self.z_hit * np.exp(-(distance**2) / (2.0 * self.sigma_hit**2))
-        self._far_hit_term = self.z_hit * math.exp(-(self.max_distance**2) / (2.0 * self.sigma_hit**2))
-        self._tables: dict[float, tuple[NDArray[np.float32], float]] = {}
+        hit = np.exp(-(distance**2) / (2.0 * self.sigma_hit**2))
+        far = math.exp(-(self.max_distance**2) / (2.0 * self.sigma_hit**2))
+        self._hit_term = {False: self.z_hit * hit}
+        self._off_map_hit_term = {False: self.z_hit * far}
+        if self.unknown_occupancy > 0.0:
+            # Inside open unknown cells only, one value: no slope that would pull end points towards
+            # unknown space; none behind closed walls, where a beam cannot reach.
+            open_unknown, open_off_map = grid_map.open_unknown()
+            unknown = np.maximum(hit, self.unknown_occupancy)
+            self._hit_term[True] = self.z_hit * np.where(open_unknown, unknown, hit)
+            self._off_map_hit_term[True] = self.z_hit * (max(far, self.unknown_occupancy) if open_off_map else far)
+        self._far_hit_term = self.z_hit * far
+        self._near: dict[float, NDArray[np.bool_]] = {}
+        self._tables: dict[tuple[float, bool], tuple[NDArray[np.float32], float]] = {}
 
     def floor_log_likelihood(self, max_range: float) -> float:
         """The lowest per-beam log-likelihood: a reading far from every obstacle."""
         return math.log(self._far_hit_term + self.z_rand / max_range)
 
-    def table(self, max_range: float) -> tuple[NDArray[np.float32], float]:
+    def table(self, max_range: float, *, partial_map: bool = False) -> tuple[NDArray[np.float32], float]:
         """Per-cell ``log p`` ``(H, W)`` and the off-map value for readings up to ``max_range`` [m]."""
         _check_positive("max_range", max_range)
-        key = float(max_range)
+        partial = partial_map and self.unknown_occupancy > 0.0
+        key = (float(max_range), partial)
         if key not in self._tables:
             if len(self._tables) > 8:  # the scanner's range_max rarely changes; keep the cache small
                 self._tables.clear()
-            random_term = self.z_rand / key
-            table = np.log(self._hit_term + random_term).astype(np.float32)
-            self._tables[key] = (table, self.floor_log_likelihood(key))
+            random_term = self.z_rand / key[0]
+            table = np.log(self._hit_term[partial] + random_term).astype(np.float32)
+            self._tables[key] = (table, math.log(self._off_map_hit_term[partial] + random_term))
         return self._tables[key]
 
     def log_likelihood(
-        self, poses: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, max_range: float
+        self, poses: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, max_range: float, partial_map: bool = False
     ) -> NDArray[np.float64]:
         """Sum over beams of ``log p`` for each pose.
 
@@ -164,14 +207,35 @@ class LikelihoodFieldModel:
             poses: ``(P, 3)`` laser poses in the map [m, m, rad].
             angles, ranges: ``(B,)`` hits only (finite ranges) [rad, m].
             max_range: the range that ``z_rand`` is spread over [m].
+            partial_map: score end points in unknown space with ``unknown_occupancy``.
 
         Returns:
             ``(P,)`` summed per-beam log-likelihoods.
         """
-        table, off_map = self.table(max_range)
+        table, off_map = self.table(max_range, partial_map=partial_map)
         return field_log_likelihood(
             table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges, off_map
         )
+
+    def beam_agreement(
+        self, poses: ArrayLike, weights: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, distance: float
+    ) -> NDArray[np.float64]:
+        """Per beam ``(B,)``: the weight of the poses whose end point lies within ``distance`` [m] of a mapped obstacle.
+
+        nav2_amcl's beam skipping counts particles; here they are weighted.
+        """
+        key = float(distance)
+        if key not in self._near:
+            self._near.clear()
+            self._near[key] = np.ascontiguousarray(self.grid_map.distance_field() <= key)
+        poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+        weights_arr = np.ascontiguousarray(np.asarray(weights, dtype=np.float64).reshape(-1))
+        beam_x, beam_y = _beam_offsets(angles, ranges)
+        out = np.empty(beam_x.shape[0], dtype=np.float64)
+        origin = self.grid_map.origin
+        _agreement_kernel(self._near[key], float(origin[0]), float(origin[1]), 1.0 / self.grid_map.resolution,
+                          poses_arr, weights_arr, beam_x, beam_y, out)
+        return out
 
 
 class BeamModel:

@@ -63,6 +63,20 @@ class MclSettings(Settings):
         low=0.0, low_open=True, high=1e3,
     )
     max_beams: int = setting(60, "valid beams used per scan, evenly spaced (nav2 60)", low=1, high=100_000)
+    unknown_occupancy: float = setting(
+        0.5, "once converged, an end point in open unknown space (or off the map) scores at least this share "
+        "of a mapped hit, as if unknown cells held an obstacle with this probability; 0: by its distance to the "
+        "nearest mapped obstacle, as nav2 (ours)", low=0.0, high=1.0,
+    )
+    do_beamskip: bool = setting(True, "once converged, skip the beams that few particles place near a mapped "
+                                "obstacle (nav2 false, and only with likelihood_field_prob)")
+    beam_skip_distance: float = setting(0.5, "an end point this close to a mapped obstacle agrees with the map "
+                                        "(nav2 0.5)", unit="m", low=0.0, low_open=True, high=100.0)
+    beam_skip_threshold: float = setting(0.3, "a beam is skipped when particles holding less than this share of "
+                                         "the weight agree (nav2 0.3, of the particle count)", low=0.0, high=1.0)
+    beam_skip_error_threshold: float = setting(0.9, "when more than this share of the beams would be skipped, none "
+                                               "is (the filter, not the map, is likely wrong; nav2 0.9)",
+                                               low=0.0, high=1.0)
     laser_max_range: float = setting(
         100.0, "readings at or beyond are no-returns; <= 0: the scan's range_max (nav2 100)", unit="m",
         low=-1.0, high=_BIG,
@@ -91,6 +105,9 @@ class MclSettings(Settings):
         "measurement", "injected poses: the best-fitting of many uniform draws (measurement, ours) or uniform (nav2)",
         choices=RECOVERY_SAMPLINGS,
     )
+    recovery_requires_better: bool = setting(
+        True, "while LOCALIZED, with recovery_sampling measurement, inject only draws that explain the scan "
+        "better than every particle (ours)")
     recovery_candidates: int = setting(
         10, "uniform draws scored per injected particle with recovery_sampling measurement (ours)", low=1, high=1000
     )
@@ -130,10 +147,11 @@ class MclSettings(Settings):
         10.0, "LOCALIZED needs at least this effective sample size (ours)", low=0.0, high=1e9
     )
     lost_fit_ratio: float = setting(
-        0.6, "the fit is collapsing (not LOCALIZED) when w_fast < this * w_slow (ours)", low=0.0, high=1.0
+        0.6, "the fit is collapsing (not LOCALIZED) when the fit over every beam, averaged fast or of this scan, "
+        "falls below this share of its slow average (ours)", low=0.0, high=1.0
     )
     ambiguous_cluster_weight: float = setting(
-        0.2, "a second cluster this heavy makes the state AMBIGUOUS (ours)", low=0.0, high=1.0
+        0.2, "a second cluster this heavy makes the state AMBIGUOUS, never LOCALIZED (ours)", low=0.0, high=1.0
     )
     max_reported_particles: int = setting(
         5000, "particles returned with each estimate, heaviest first (ours)", low=0, high=10_000_000
