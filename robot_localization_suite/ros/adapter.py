@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
-from ..core.localizer import CameraLocalizer, Estimate, Localizer
+from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus
 from ..core.scan import LaserMount
 from ..core.se2 import compose, inverse, relative
 from . import conversions
@@ -66,7 +66,10 @@ class AdapterOutput:
     estimate does not pay for turning 50,000 particles into a PoseArray.
 
     Attributes:
-        map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry).
+        has_pose: whether there is a pose to publish: the estimate is not LOST (LOST means it has nothing
+            worth using: diagnostics and candidates only) and its pose and covariance are finite.
+        map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry or
+            without a pose).
         odometry_lag: how far [s] the estimate's stamp lies after the newest odometry used for it.
     """
 
@@ -83,6 +86,7 @@ class AdapterOutput:
         odometry_lag: float = math.inf,
     ) -> None:
         self.estimate = estimate
+        self.has_pose = estimate.status is not LocalizerStatus.LOST and _finite_estimate(estimate)
         self.update_ms = update_ms
         self.frame_id = frame_id
         self.map_to_odom = map_to_odom
@@ -93,7 +97,8 @@ class AdapterOutput:
 
     @cached_property
     def pose(self) -> Any:
-        return conversions.estimate_to_pose_msg(self.estimate, self.frame_id)
+        """The pose message; None without a pose (:attr:`has_pose`): nothing is published on ``~/pose``."""
+        return conversions.estimate_to_pose_msg(self.estimate, self.frame_id) if self.has_pose else None
 
     @cached_property
     def candidates(self) -> Any:
@@ -108,6 +113,10 @@ class AdapterOutput:
         return self._extras_builder(self.estimate) if self._extras_builder else {}
 
 
+def _finite_estimate(estimate: Estimate) -> bool:
+    return bool(np.all(np.isfinite(estimate.pose)) and np.all(np.isfinite(estimate.covariance)))
+
+
 def _same_map(a: Any, b: Any) -> bool:
     """Same cells, resolution and origin; OccupancyGrid stores the resolution as float32, hence the tolerance."""
     return (
@@ -120,15 +129,24 @@ def _same_map(a: Any, b: Any) -> bool:
 
 # Spread of an initial pose whose covariance cannot be used: ROS 1 amcl's (0.5 m, 0.5 m, pi/12 rad).
 DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
+# Positions farther than this from their frame's origin [m] are refused, as the initial_pose.* parameters
+# range: no robot travels 1,000 km, and within it the cores' float64 arithmetic keeps micrometres.
+MAX_POSITION_M = 1e6
 # Odometry poses held at most while the mount is not known (a few minutes of a fast odometry source).
 _MAX_HELD_ODOMETRY = 20_000
 
 
-def _positive_definite(covariance: NDArray[np.float64]) -> bool:
-    """Whether a ``(3, 3)`` covariance is finite, symmetric and positive definite."""
+def _covariance_problem(covariance: NDArray[np.float64]) -> str | None:
+    """Why a ``(3, 3)`` covariance cannot be used (not finite, symmetric and positive definite, or too wide), or None."""
     if not np.all(np.isfinite(covariance)) or not np.allclose(covariance, covariance.T, atol=1e-9):
-        return False
-    return bool(np.linalg.eigvalsh(covariance).min() > 0.0)
+        return "not positive definite"
+    if np.any(np.diag(covariance)[:2] > MAX_POSITION_M**2):
+        return f"wider than {MAX_POSITION_M:g} m"
+    return None if np.linalg.eigvalsh(covariance).min() > 0.0 else "not positive definite"
+
+
+def _far(pose: NDArray[np.float64]) -> bool:
+    return bool(np.any(np.abs(pose[:2]) > MAX_POSITION_M))
 
 
 class InputClock:
@@ -282,6 +300,10 @@ class LocalizerAdapter:
         if not np.all(np.isfinite(pose)):
             self.log("warn", "odom_nan", f"ignoring odometry with non-finite pose {pose.tolist()!r}")
             return
+        if _far(pose):
+            self.log("warn", "odom_far", f"ignoring odometry at ({pose[0]!r}, {pose[1]!r}) m: more than "
+                     f"{MAX_POSITION_M:g} m from the odometry origin")
+            return
         if not self._admit("odometry", stamp):
             return
         self.odometry.add(stamp, pose)  # a stamp far in the past starts its new timeline, as the clock did
@@ -303,14 +325,19 @@ class LocalizerAdapter:
         if not np.all(np.isfinite(pose)):
             self.log("warn", "initialpose", f"ignoring initial pose with non-finite values {pose.tolist()!r}")
             return False
+        if _far(pose):
+            self.log("warn", "initialpose", f"ignoring initial pose at ({pose[0]!r}, {pose[1]!r}) m: more than "
+                     f"{MAX_POSITION_M:g} m from the origin of {frame!r}")
+            return False
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
         then, now = self.odometry.at(stamp), self.odometry.latest
         if stamp > 0.0 and then is not None and now is not None:
             # A pose of the past (RViz stamps it when clicked): moved on by the odometry since, as nav2_amcl does.
             pose = compose(pose, relative(then, now))
-        if not _positive_definite(covariance):
+        problem = _covariance_problem(covariance)
+        if problem is not None:
             self.log("warn", "initialpose_covariance",
-                     f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is not positive definite: "
+                     f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is {problem}: "
                      f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
                      f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
             self.set_initial_pose(pose)
@@ -416,10 +443,16 @@ class LocalizerAdapter:
         )
 
     def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
+        """The output of an estimate; a LOST one, or one whose pose or covariance is not finite, gets no pose and
+        no ``map -> odom``."""
         base = self.to_base_estimate(estimate)
         odom = self.odometry.at(base.stamp)
+        has_pose = base.status is not LocalizerStatus.LOST and _finite_estimate(base)
+        if not has_pose and base.status is not LocalizerStatus.LOST:
+            self.log("warn", "estimate_nan", f"{base.status.value} estimate at {base.stamp:.3f} s has a non-finite pose "
+                     f"{base.pose.tolist()!r} or covariance: no pose published")
         return AdapterOutput(
             base, update_ms, self.node_name, self.max_candidates, self._extras_builder, frame_id=self.global_frame,
-            map_to_odom=None if odom is None else map_to_odom(base.pose, odom),
+            map_to_odom=None if odom is None or not has_pose else map_to_odom(base.pose, odom),
             odometry_lag=base.stamp - self._last_odometry_stamp,
         )
