@@ -251,3 +251,10 @@ def test_distance_field_values() -> None:
 def test_distance_field_without_obstacles_is_the_map_diagonal() -> None:
     grid = GridMap(np.zeros((3, 4), np.int8), 0.5)
     np.testing.assert_allclose(grid.distance_field(), np.hypot(3, 4) * 0.5)
+
+
+def test_a_map_reaching_beyond_a_thousand_kilometres_is_refused() -> None:
+    GridMap(np.zeros((10, 10), np.int8), 0.05, (-999_999.0, 999_999.0))  # within 1e6 m: fine
+    for origin, resolution in (((6.6e16, 0.0), 0.05), ((0.0, -2e6), 0.05), ((0.0, 0.0), 3.4e38)):
+        with pytest.raises(MapError, match="reaches more than 1e\\+06 m from the origin"):
+            GridMap(np.zeros((10, 10), np.int8), resolution, origin)

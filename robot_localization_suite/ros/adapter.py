@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
+from ..core.grid_map import MAX_COORDINATE_M
 from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus
 from ..core.scan import LaserMount
 from ..core.se2 import compose, inverse, relative
@@ -129,9 +130,6 @@ def _same_map(a: Any, b: Any) -> bool:
 
 # Spread of an initial pose whose covariance cannot be used: ROS 1 amcl's (0.5 m, 0.5 m, pi/12 rad).
 DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
-# Positions farther than this from their frame's origin [m] are refused, as the initial_pose.* parameters
-# range: no robot travels 1,000 km, and within it the cores' float64 arithmetic keeps micrometres.
-MAX_POSITION_M = 1e6
 # Odometry poses held at most while the mount is not known (a few minutes of a fast odometry source).
 _MAX_HELD_ODOMETRY = 20_000
 
@@ -140,13 +138,27 @@ def _covariance_problem(covariance: NDArray[np.float64]) -> str | None:
     """Why a ``(3, 3)`` covariance cannot be used (not finite, symmetric and positive definite, or too wide), or None."""
     if not np.all(np.isfinite(covariance)) or not np.allclose(covariance, covariance.T, atol=1e-9):
         return "not positive definite"
-    if np.any(np.diag(covariance)[:2] > MAX_POSITION_M**2):
-        return f"wider than {MAX_POSITION_M:g} m"
+    if np.any(np.diag(covariance)[:2] > MAX_COORDINATE_M**2):
+        return f"wider than {MAX_COORDINATE_M:g} m"
     return None if np.linalg.eigvalsh(covariance).min() > 0.0 else "not positive definite"
 
 
+# A quaternion whose squared norm is farther than this from 1 is no rotation (tf2's TF_DENORMALIZED_QUATERNION).
+_QUATERNION_TOLERANCE = 0.01
+
+
+def _not_a_rotation(orientation: Any) -> str | None:
+    """Why a ``geometry_msgs/Quaternion`` is no rotation (not finite, or not of unit norm, as tf2 refuses), or None."""
+    q = np.array([orientation.x, orientation.y, orientation.z, orientation.w], dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm2 = float(np.dot(q, q))
+    if math.isfinite(norm2) and abs(norm2 - 1.0) <= _QUATERNION_TOLERANCE:
+        return None
+    return f"its quaternion (x, y, z, w) {q.tolist()!r} is not a rotation (squared norm {norm2!r}, not 1)"
+
+
 def _far(pose: NDArray[np.float64]) -> bool:
-    return bool(np.any(np.abs(pose[:2]) > MAX_POSITION_M))
+    return bool(np.any(np.abs(pose[:2]) > MAX_COORDINATE_M))
 
 
 class InputClock:
@@ -272,15 +284,16 @@ class LocalizerAdapter:
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
+        """Use the map of ``msg``; False (logged) when it or the method refuses it."""
         try:
-            grid_map = conversions.grid_map_from_msg(msg)
+            self.set_map(conversions.grid_map_from_msg(msg))
         except MapError as exc:
             self.log("error", "map", f"ignoring map message: {exc}")
             return False
-        self.set_map(grid_map)
         return True
 
     def set_map(self, grid_map: Any) -> None:
+        """Give the method ``grid_map``. Raises MapError when the method refuses it; it then has no map."""
         if not hasattr(self.localizer, "set_map"):
             return
         if self._current_map is not None and _same_map(self._current_map, grid_map):
@@ -288,11 +301,20 @@ class LocalizerAdapter:
             self._info("debug", "map unchanged: keeping the current one")
             return
         self._info("info", f"map {grid_map.width} x {grid_map.height} cells at {grid_map.resolution} m received")
-        self.localizer.set_map(grid_map)
+        try:
+            self.localizer.set_map(grid_map)
+        except MapError:
+            # The method may hold part of this map now: no map until the next one, whichever it is.
+            self._current_map, self.has_map = None, False
+            raise
         self._current_map = grid_map
         self.has_map = True
 
     def on_odom_msg(self, msg: Any) -> None:
+        problem = _not_a_rotation(msg.pose.pose.orientation)
+        if problem is not None:
+            self.log("warn", "odom_quaternion", f"ignoring odometry: {problem}")
+            return
         self.on_odometry(*conversions.odometry_from_msg(msg))
 
     def on_odometry(self, stamp: float, pose: NDArray[np.float64]) -> None:
@@ -302,7 +324,7 @@ class LocalizerAdapter:
             return
         if _far(pose):
             self.log("warn", "odom_far", f"ignoring odometry at ({pose[0]!r}, {pose[1]!r}) m: more than "
-                     f"{MAX_POSITION_M:g} m from the odometry origin")
+                     f"{MAX_COORDINATE_M:g} m from the odometry origin")
             return
         if not self._admit("odometry", stamp):
             return
@@ -315,11 +337,15 @@ class LocalizerAdapter:
         self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
 
     def on_initial_pose_msg(self, msg: Any) -> bool:
-        """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, non-finite)."""
+        """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, no rotation, non-finite, far)."""
         frame = msg.header.frame_id.lstrip("/")
         if frame != self.global_frame:
             self.log("warn", "initialpose_frame", f"ignoring initial pose in frame {frame!r}: initial poses must be in "
                      f"the global frame {self.global_frame!r} (global_frame_id)")
+            return False
+        problem = _not_a_rotation(msg.pose.pose.orientation)
+        if problem is not None:
+            self.log("warn", "initialpose", f"ignoring initial pose: {problem}")
             return False
         pose, covariance = conversions.initial_pose_from_msg(msg)
         if not np.all(np.isfinite(pose)):
@@ -327,7 +353,7 @@ class LocalizerAdapter:
             return False
         if _far(pose):
             self.log("warn", "initialpose", f"ignoring initial pose at ({pose[0]!r}, {pose[1]!r}) m: more than "
-                     f"{MAX_POSITION_M:g} m from the origin of {frame!r}")
+                     f"{MAX_COORDINATE_M:g} m from the origin of {frame!r}")
             return False
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
         then, now = self.odometry.at(stamp), self.odometry.latest
