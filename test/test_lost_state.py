@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_fuzz import room
 
 from robot_localization_suite import registry
-from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
@@ -29,14 +29,6 @@ TRUTH = np.array([1.8, 1.4, 0.7])
 # A scan that fits nowhere in the room, for each method: every beam 0.3 m (a closet: no IAL box is left),
 # every beam beyond range_max (nothing for PIL to match).
 NOWHERE = {"ial_localizer": 0.3, "pil_localizer": 30.0}
-
-
-def room() -> GridMap:
-    data = np.zeros((80, 120), dtype=np.int8)
-    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
-    data[:45, 70:72] = 100  # partition at x = 3.5 m up to y = 2.25 m
-    data[55:65, 15:30] = 100  # box at x 0.75-1.5 m, y 2.75-3.25 m
-    return GridMap(data, 0.05, (0.0, 0.0))
 
 
 def scan(stamp: float, ranges: np.ndarray) -> Any:
