@@ -362,8 +362,9 @@ class LocalizerAdapter:
             pose = compose(pose, relative(then, now))
         problem = _covariance_problem(covariance)
         if problem is not None:
+            shown = [[float(f"{value:.6g}") for value in row] for row in covariance.tolist()]  # np.round overflows
             self.log("warn", "initialpose_covariance",
-                     f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is {problem}: "
+                     f"initial pose covariance (x, y, yaw) {shown!r} is {problem}: "
                      f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
                      f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
             self.set_initial_pose(pose)
