@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from robot_localization_suite.core.errors import LocalizationSuiteError
+from robot_localization_suite.core.errors import LocalizationSuiteError, MapError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Estimate, LocalizerStatus
 from robot_localization_suite.core.scan import LaserMount, Scan
@@ -253,3 +253,61 @@ def test_a_scan_whose_angle_max_disagrees_with_its_increment_is_skipped_naming_t
     off_by_one = scan_msg(2.0, [1.0] * 5)
     off_by_one.angle_max = float(off_by_one.angle_max + off_by_one.angle_increment)  # a driver's end of the last sector
     assert adapter.on_scan_msg(off_by_one) is not None
+
+
+def test_a_map_the_method_refuses_is_logged_and_the_next_map_is_taken_even_if_it_is_the_previous_one() -> None:
+    """MCL refused a map without a free cell after taking it in part; the right map sent again was 'unchanged'."""
+
+    class Picky(EchoLocalizer):
+        def set_map(self, grid_map: GridMap) -> None:
+            self.grid_map = grid_map  # in part, as a method failing half-way
+            if not grid_map.free_mask.any():
+                raise MapError("the map has no free cell to sample poses from")
+
+    core, logs = Picky(), Logs()
+    adapter = LocalizerAdapter(core, node_name="echo", log=logs)
+    room = GridMap(np.zeros((10, 10), np.int8), 0.1)
+    assert adapter.on_map_msg(conversions.grid_map_to_msg(room, 0.0)) and adapter.has_map
+    wall = GridMap(np.full((1, 1), 100, np.int8), 0.1)
+    assert not adapter.on_map_msg(conversions.grid_map_to_msg(wall, 0.0))
+    assert "ignoring map message: the map has no free cell" in logs.text() and not adapter.has_map
+    assert adapter.on_scan_msg(scan_msg(1.0, [1.0] * 5)) is None and not core.scans  # no map: no update
+    assert adapter.on_map_msg(conversions.grid_map_to_msg(room, 0.0)) and adapter.has_map
+    assert core.grid_map is not None and core.grid_map.width == 10  # given again, not kept as "unchanged"
+    with pytest.raises(MapError):  # map_yaml at configure: the caller sees the refusal
+        adapter.set_map(wall)
+
+
+def test_positions_beyond_a_thousand_kilometres_are_refused() -> None:
+    adapter, core, logs = make_adapter()
+    adapter.on_odom_msg(odom_msg(1.0, [1e308, -1e308, 0.0]))
+    assert not core.odometry and "more than 1e+06 m from the odometry origin" in logs.text()
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, np.array([2e6, 0.0, 0.0]), np.eye(3)))
+    assert not core.initial_poses and "more than 1e+06 m from the origin of 'map'" in logs.text()
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, np.array([1.0, 2.0, 0.0]),
+                                                                np.diag([1e300, 1e300, 1.0])))
+    np.testing.assert_allclose(core.initial_covariances[-1], np.diag([0.5**2, 0.5**2, (np.pi / 12) ** 2]))
+    assert "is wider than 1e+06 m: using the default spread" in logs.text()
+    far = conversions.grid_map_to_msg(GridMap(np.zeros((10, 10), np.int8), 0.1), 0.0)
+    far.info.origin.position.x = 6.6e16  # float64 steps of 8 m there
+    assert not adapter.on_map_msg(far)
+    assert "reaches more than 1e+06 m from the origin" in logs.text()
+
+
+def test_odometry_and_initial_poses_whose_quaternion_is_no_rotation_are_refused() -> None:
+    """A quaternion far from unit norm has no meaning as a heading (tf2 refuses it too)."""
+    adapter, core, logs = make_adapter()
+    odom = odom_msg(1.0, [1.0, 2.0, 0.5])
+    odom.pose.pose.orientation.x, odom.pose.pose.orientation.y = 0.0, 1e308
+    adapter.on_odom_msg(odom)
+    zero = odom_msg(1.0, [1.0, 2.0, 0.5])
+    zero.pose.pose.orientation.z = zero.pose.pose.orientation.w = 0.0
+    adapter.on_odom_msg(zero)
+    assert not core.odometry  # the zero one too (its warning is throttled with the first)
+    assert "ignoring odometry: its quaternion (x, y, z, w) [0.0, 1e+308, " in logs.text()
+    adapter.on_odom_msg(odom_msg(1.0, [1.0, 2.0, 0.5]))
+    assert len(core.odometry) == 1
+    initial = conversions.initial_pose_to_msg(0.0, np.array([1.0, 2.0, 0.3]), np.eye(3) * 0.01)
+    initial.pose.pose.orientation.w = 2.0
+    assert not adapter.on_initial_pose_msg(initial) and not core.initial_poses
+    assert "ignoring initial pose: its quaternion" in logs.text() and "is not a rotation" in logs.text()

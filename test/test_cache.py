@@ -1,4 +1,4 @@
-"""The shared on-disk cache helpers (core/cache.py): directory, budget, least-recently-used pruning."""
+"""The shared on-disk cache helpers (core/cache.py): directory, budget, least-recently-used pruning, reading."""
 
 from __future__ import annotations
 
@@ -6,16 +6,20 @@ import logging
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
+from cache_damage import damaged
 
 from robot_localization_suite.core.cache import (
     CACHE_BUDGET_ENV,
     DEFAULT_CACHE_BUDGET_MB,
     cache_budget_bytes,
     default_cache_dir,
+    load_cached,
     mark_used,
     prune_cache,
 )
+from robot_localization_suite.core.errors import CacheError
 
 MB = 1024 * 1024
 
@@ -90,3 +94,43 @@ def test_a_cache_hit_makes_a_file_the_most_recently_used(tmp_path: Path) -> None
     assert prune_cache(tmp_path, 200, keep=written) == [other]
     assert hit.is_file()
     mark_used(tmp_path / "missing.npz")  # a file pruned by another process meanwhile: no error
+
+
+def _read(path: Path) -> int:
+    with np.load(path, allow_pickle=False) as archive:
+        return int(archive["value"].sum())
+
+
+def test_load_cached_reads_a_good_file_and_marks_it_used(tmp_path: Path) -> None:
+    path = tmp_path / "good.npz"
+    np.savez(path, value=np.arange(10))
+    os.utime(path, (1000.0, 1000.0))
+    warnings: list[str] = []
+    assert load_cached(path, _read, what="test", warn=warnings.append) == 45
+    assert path.stat().st_mtime > 1000.0 and not warnings
+    assert load_cached(tmp_path / "missing.npz", _read, what="test", warn=warnings.append) is None
+    assert not warnings  # no file is a miss, not a fault
+
+
+def test_load_cached_warns_once_naming_a_damaged_file_whatever_it_raises(tmp_path: Path) -> None:
+    path = tmp_path / "damaged.npz"
+    np.savez(path, value=np.arange(10))
+    for how, content in damaged(path.read_bytes()).items():
+        path.write_bytes(content)
+        warnings: list[str] = []
+        assert load_cached(path, _read, what="Test", warn=warnings.append, then="redoing it") is None, how
+        assert len(warnings) == 1, (how, warnings)
+        assert warnings[0].startswith(f"Test cache {str(path)!r} is unreadable: ") and warnings[0].endswith(
+            "; redoing it"), (how, warnings)
+
+
+def test_load_cached_passes_on_a_cache_errors_own_message(tmp_path: Path) -> None:
+    path = tmp_path / "stale.npz"
+    path.write_bytes(b"anything")
+
+    def stale(_: Path) -> int:
+        raise CacheError(f"cache {str(path)!r} was built with other settings")
+
+    warnings: list[str] = []
+    assert load_cached(path, stale, what="Test", warn=warnings.append) is None
+    assert warnings == [f"cache {str(path)!r} was built with other settings; rebuilding it"]

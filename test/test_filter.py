@@ -175,6 +175,18 @@ def test_the_distance_field_is_sampled_bilinearly_with_its_gradient() -> None:
     assert np.all(np.isinf(d)) and np.all(gx == 0.0)  # off the map: no distance, no pull
 
 
+def test_a_map_one_cell_wide_or_high_has_a_distance_field() -> None:
+    """numpy has no gradient along an axis of one cell: ir_initializer died on a 1 x 1 map (issue 14)."""
+    row = np.zeros((1, 40), dtype=np.int8)
+    row[0, 0] = 100
+    for data in (row, row.T.copy(), np.full((1, 1), 100, dtype=np.int8)):
+        field = DistanceField(GridMap(data, RESOLUTION, (0.0, 0.0)))
+        assert field.grad_x.shape == field.grad_y.shape == data.shape
+        assert np.all(np.isfinite(field.grad_x)) and np.all(np.isfinite(field.grad_y))
+    field = DistanceField(GridMap(row, RESOLUTION, (0.0, 0.0)))
+    assert np.all(field.grad_y == 0.0) and field.grad_x[0, 10] == pytest.approx(1.0)  # grows away from the wall
+
+
 @pytest.mark.parametrize(
     "options",
     [

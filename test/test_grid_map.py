@@ -281,3 +281,10 @@ def test_open_unknown_is_the_unknown_space_a_laser_could_see_into() -> None:
     mask, off_map = GridMap(opened, 0.1, (0.0, 0.0)).open_unknown()
     assert mask[0, 0] and mask[5, 2] and off_map
     assert not mask[opened == 100].any() and not mask[4, 4]  # known cells never count
+
+
+def test_a_map_reaching_beyond_a_thousand_kilometres_is_refused() -> None:
+    GridMap(np.zeros((10, 10), np.int8), 0.05, (-999_999.0, 999_999.0))  # within 1e6 m: fine
+    for origin, resolution in (((6.6e16, 0.0), 0.05), ((0.0, -2e6), 0.05), ((0.0, 0.0), 3.4e38)):
+        with pytest.raises(MapError, match="reaches more than 1e\\+06 m from the origin"):
+            GridMap(np.zeros((10, 10), np.int8), resolution, origin)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from cache_damage import damaged
 
 from robot_localization_suite.core.errors import CacheError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
@@ -291,21 +292,22 @@ def test_a_reloaded_cache_gives_identical_rankings(world: GridMap, tmp_path: Pat
         np.testing.assert_array_equal(a.candidate_weights, b.candidate_weights)
 
 
-def test_a_corrupt_cache_is_rebuilt_with_a_warning(world: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+def test_a_corrupt_cache_is_rebuilt_after_one_warning_naming_it(world: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     cached = settings(use_cache=True, cache_dir=str(tmp_path), step1_positions=80, refine_candidates=40)
     scan = scan_at(world, np.array([6.3, 5.2, 2.0]))
     reference = IRLocalizer(cached, world).global_fix(scan)
     path = next((tmp_path / "ir").glob("*.npz"))
-    for damage in (b"not a numpy archive", path.read_bytes()[: path.stat().st_size // 2]):
+    for how, damage in damaged(path.read_bytes()).items():
         path.write_bytes(damage)
         with pytest.raises(CacheError, match="unreadable"):
             IRIndex.load(path, IRLocalizer(cached, None).settings.fan_model(math.radians(1.0), SCAN_RANGE),
                          cached.index_settings())
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="robot_localization_suite.core.ir.index"):
+        with caplog.at_level(logging.WARNING):
             rebuilt = IRLocalizer(cached, world)
             estimate = rebuilt.global_fix(scan)
-        assert any("rebuilding" in record.getMessage() for record in caplog.records)
+        warnings = [record.getMessage() for record in caplog.records if record.levelno >= logging.WARNING]
+        assert len(warnings) == 1 and str(path) in warnings[0] and "rebuilding" in warnings[0], (how, warnings)
         assert rebuilt.index is not None and rebuilt.index.build_seconds > 0.0
         np.testing.assert_array_equal(estimate.candidates, reference.candidates)
         # and the rebuilt file is good again

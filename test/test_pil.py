@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cache_damage import damaged
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -318,13 +319,14 @@ def test_cached_learning_reloads_identically_and_a_corrupt_cache_is_rebuilt(
     scan = _scan(room, np.array([2.5, 2.1, 0.4]))
     np.testing.assert_array_equal(first.global_fix(scan).candidates, second.global_fix(scan).candidates)
 
-    for damage in (b"not a zip file", files[0].read_bytes()[:200]):
+    for how, damage in damaged(files[0].read_bytes()).items():
         files[0].write_bytes(damage)
         third = PilLocalizer(settings_)
         with caplog.at_level(logging.WARNING):
             caplog.clear()
             third.set_map(room)
-        assert any("relearning" in record.getMessage() for record in caplog.records)
+        warnings = [record.getMessage() for record in caplog.records if record.levelno >= logging.WARNING]
+        assert len(warnings) == 1 and str(files[0]) in warnings[0] and "relearning" in warnings[0], (how, warnings)
         assert third.learning is not None and not third.learning.from_cache
         assert np.array_equal(third.learning.ranges_mm, first.learning.ranges_mm)
     fourth = PilLocalizer(settings_)

@@ -7,6 +7,8 @@ subdirectory of :func:`default_cache_dir`. After writing a new file it calls
 (modification time, refreshed by :func:`mark_used` on every hit) are deleted
 until the subdirectory fits :func:`cache_budget_bytes`; the file just written
 is never deleted, and only names matching the given pattern are considered.
+:func:`load_cached` reads a cache file: a corrupt one (any error reading it) is
+reported by one warning naming it, then rebuilt by the caller.
 
 Notes (why modification time, per-directory budgets, concurrent writers): docs/ir.md, "Cache".
 """
@@ -18,12 +20,16 @@ import math
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
+
+from .errors import CacheError
 
 __all__ = [
     "CACHE_BUDGET_ENV",
     "DEFAULT_CACHE_BUDGET_MB",
     "cache_budget_bytes",
     "default_cache_dir",
+    "load_cached",
     "mark_used",
     "prune_cache",
 ]
@@ -37,6 +43,7 @@ CACHE_BUDGET_ENV = "RLS_CACHE_BUDGET_MB"
 DEFAULT_CACHE_BUDGET_MB = 2048.0
 
 _BYTES_PER_MB = 1024 * 1024
+_T = TypeVar("_T")
 
 
 def default_cache_dir() -> Path:
@@ -77,6 +84,29 @@ def mark_used(path: Path) -> None:
         os.utime(path)
     except OSError as exc:  # read-only cache: it is still usable, only its order is not kept
         _LOG.debug("could not mark %s as used: %s", path, exc)
+
+
+def load_cached(
+    path: Path, load: Callable[[Path], _T], *, what: str, warn: Callable[[str], None], then: str = "rebuilding it"
+) -> _T | None:
+    """``load(path)`` (a hit: marked used), or None when there is no file or it cannot be used.
+
+    Any error from ``load`` means a corrupt or stale file, which the caller then rebuilds: it is reported
+    by exactly one ``warn(text)`` naming the file (a :class:`CacheError`'s own message, or
+    ``"<what> cache '<path>' is unreadable: <error>"``) followed by ``; <then>``. A garbled zip header
+    raises NotImplementedError or a tokenizer error in ``np.load``, not only OSError or ValueError.
+    """
+    if not path.is_file():
+        return None
+    try:
+        value = load(path)
+    except Exception as exc:  # noqa: BLE001 - whatever a damaged file raises, the cache is rebuilt
+        reason = str(exc) if isinstance(exc, CacheError) else (
+            f"{what} cache {str(path)!r} is unreadable: {type(exc).__name__}: {exc}")
+        warn(f"{reason}; {then}")
+        return None
+    mark_used(path)
+    return value
 
 
 def prune_cache(

@@ -15,7 +15,8 @@ Loading follows nav2 map_server (``nav2_map_server/src/map_io.cpp``):
 * ``raw``: the pixel value itself; values above 100 are unknown.
 
 The image's first row is the top of the map (highest y), so it is flipped.
-A rotated origin (non-zero yaw) is refused rather than silently ignored.
+A rotated origin (non-zero yaw) is refused rather than silently ignored, and so is a map reaching
+farther than ``MAX_COORDINATE_M`` from the origin of its frame.
 """
 
 from __future__ import annotations
@@ -32,10 +33,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import MapError
 
-__all__ = ["GridMap", "load_map_yaml", "MAP_MODES", "MAP_IMAGE_FORMATS"]
+__all__ = ["GridMap", "load_map_yaml", "MAP_MODES", "MAP_IMAGE_FORMATS", "MAX_COORDINATE_M"]
 
 MAP_MODES = ("trinary", "scale", "raw")
 MAP_IMAGE_FORMATS = ("pgm", "png")
+# Positions farther than this from their frame's origin [m] are refused (maps, odometry, initial poses): no
+# robot travels 1,000 km, and within it float64 keeps micrometres (at 6.6e16 m, one step is 8 m).
+MAX_COORDINATE_M = 1e6
 
 # What nav2 map_saver writes for each cell class in a trinary PGM.
 _PGM_OCCUPIED, _PGM_FREE, _PGM_UNKNOWN = 0, 254, 205
@@ -68,6 +72,10 @@ class GridMap:
             raise MapError(f"map resolution must be positive, got {self.resolution!r}")
         if len(self.origin) != 2 or not np.all(np.isfinite(self.origin)):
             raise MapError(f"map origin must be two finite numbers, got {self.origin!r}")
+        far = np.abs(np.asarray(self.origin, dtype=np.float64)) + np.array(data.shape[::-1]) * self.resolution
+        if np.any(far > MAX_COORDINATE_M):
+            raise MapError(f"map with origin {self.origin!r}, {data.shape[1]} x {data.shape[0]} cells at "
+                           f"{self.resolution!r} m reaches more than {MAX_COORDINATE_M:g} m from the origin")
         self.data = np.ascontiguousarray(data, dtype=np.int8)
         self.resolution = float(self.resolution)
         self.origin = (float(self.origin[0]), float(self.origin[1]))

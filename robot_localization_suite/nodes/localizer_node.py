@@ -601,7 +601,9 @@ class LocalizerNode(LifecycleNode):
                 self._send_tf(self._last_tf[1], max(input_stamp, self._last_tf[0]))
             return
         estimate = output.estimate
-        self.pose_pub.publish(output.pose)
+        if output.has_pose:  # LOST or not finite: no pose, no new map -> odom (diagnostics and candidates only)
+            self.pose_pub.publish(output.pose)
+            self.last_pose = (estimate.pose.copy(), estimate.covariance.copy())
         self.candidates_pub.publish(output.candidates)
         self.diagnostics_pub.publish(output.diagnostics)
         if self.cloud_pub is not None:
@@ -610,9 +612,10 @@ class LocalizerNode(LifecycleNode):
         for key, msg in output.extras.items():
             if key in self.extra_pubs:
                 self.extra_pubs[key].publish(msg)
-        self.last_pose = (estimate.pose.copy(), estimate.covariance.copy())
         self._fresh_method = False
-        if output.map_to_odom is None:
+        if not output.has_pose:
+            self.publish(None, input_stamp)  # map -> odom as on a scan without an update
+        elif output.map_to_odom is None:
             self.throttled("warn", "tf_no_odometry", "no odometry yet: map -> odom not published")
         elif output.odometry_lag > ns.transform_tolerance:
             self.throttled("warn", "tf_odometry_lag", f"odometry lags the scan by {output.odometry_lag:.2f} s "

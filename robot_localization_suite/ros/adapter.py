@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
-from ..core.localizer import CameraLocalizer, Estimate, Localizer, Preparer
+from ..core.grid_map import MAX_COORDINATE_M
+from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus, Preparer
 from ..core.scan import LaserMount
 from ..core.se2 import compose, inverse, relative
 from . import conversions
@@ -66,7 +67,10 @@ class AdapterOutput:
     estimate does not pay for turning 50,000 particles into a PoseArray.
 
     Attributes:
-        map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry).
+        has_pose: whether there is a pose to publish: the estimate is not LOST (LOST means it has nothing
+            worth using: diagnostics and candidates only) and its pose and covariance are finite.
+        map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry or
+            without a pose).
         odometry_lag: how far [s] the estimate's stamp lies after the newest odometry used for it.
     """
 
@@ -83,6 +87,7 @@ class AdapterOutput:
         odometry_lag: float = math.inf,
     ) -> None:
         self.estimate = estimate
+        self.has_pose = estimate.status is not LocalizerStatus.LOST and _finite_estimate(estimate)
         self.update_ms = update_ms
         self.frame_id = frame_id
         self.map_to_odom = map_to_odom
@@ -93,7 +98,8 @@ class AdapterOutput:
 
     @cached_property
     def pose(self) -> Any:
-        return conversions.estimate_to_pose_msg(self.estimate, self.frame_id)
+        """The pose message; None without a pose (:attr:`has_pose`): nothing is published on ``~/pose``."""
+        return conversions.estimate_to_pose_msg(self.estimate, self.frame_id) if self.has_pose else None
 
     @cached_property
     def candidates(self) -> Any:
@@ -106,6 +112,10 @@ class AdapterOutput:
     @cached_property
     def extras(self) -> dict[str, Any]:
         return self._extras_builder(self.estimate) if self._extras_builder else {}
+
+
+def _finite_estimate(estimate: Estimate) -> bool:
+    return bool(np.all(np.isfinite(estimate.pose)) and np.all(np.isfinite(estimate.covariance)))
 
 
 def _same_map(a: Any, b: Any) -> bool:
@@ -124,11 +134,31 @@ DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
 _MAX_HELD_ODOMETRY = 20_000
 
 
-def _positive_definite(covariance: NDArray[np.float64]) -> bool:
-    """Whether a ``(3, 3)`` covariance is finite, symmetric and positive definite."""
+def _covariance_problem(covariance: NDArray[np.float64]) -> str | None:
+    """Why a ``(3, 3)`` covariance cannot be used (not finite, symmetric and positive definite, or too wide), or None."""
     if not np.all(np.isfinite(covariance)) or not np.allclose(covariance, covariance.T, atol=1e-9):
-        return False
-    return bool(np.linalg.eigvalsh(covariance).min() > 0.0)
+        return "not positive definite"
+    if np.any(np.diag(covariance)[:2] > MAX_COORDINATE_M**2):
+        return f"wider than {MAX_COORDINATE_M:g} m"
+    return None if np.linalg.eigvalsh(covariance).min() > 0.0 else "not positive definite"
+
+
+# A quaternion whose squared norm is farther than this from 1 is no rotation (tf2's TF_DENORMALIZED_QUATERNION).
+_QUATERNION_TOLERANCE = 0.01
+
+
+def _not_a_rotation(orientation: Any) -> str | None:
+    """Why a ``geometry_msgs/Quaternion`` is no rotation (not finite, or not of unit norm, as tf2 refuses), or None."""
+    q = np.array([orientation.x, orientation.y, orientation.z, orientation.w], dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm2 = float(np.dot(q, q))
+    if math.isfinite(norm2) and abs(norm2 - 1.0) <= _QUATERNION_TOLERANCE:
+        return None
+    return f"its quaternion (x, y, z, w) {q.tolist()!r} is not a rotation (squared norm {norm2!r}, not 1)"
+
+
+def _far(pose: NDArray[np.float64]) -> bool:
+    return bool(np.any(np.abs(pose[:2]) > MAX_COORDINATE_M))
 
 
 class InputClock:
@@ -255,10 +285,15 @@ class LocalizerAdapter:
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
+        """Use the map of ``msg``; False (logged) when it or the method refuses it."""
         grid_map = self.map_from_msg(msg)
         if grid_map is None:
             return False
-        self.set_map(grid_map)
+        try:
+            self.set_map(grid_map)
+        except MapError as exc:
+            self.log("error", "map", f"ignoring map message: {exc}")
+            return False
         return True
 
     def map_from_msg(self, msg: Any) -> Any:
@@ -274,6 +309,7 @@ class LocalizerAdapter:
         return self._current_map is not None and _same_map(self._current_map, grid_map)
 
     def set_map(self, grid_map: Any) -> None:
+        """Give the method ``grid_map``. Raises MapError when the method refuses it; it then has no map."""
         if not hasattr(self.localizer, "set_map"):
             return
         if self.is_current_map(grid_map):
@@ -281,17 +317,30 @@ class LocalizerAdapter:
             self._info("debug", "map unchanged: keeping the current one")
             return
         self._info("info", f"map {grid_map.width} x {grid_map.height} cells at {grid_map.resolution} m received")
-        self.localizer.set_map(grid_map)
+        try:
+            self.localizer.set_map(grid_map)
+        except MapError:
+            # The method may hold part of this map now: no map until the next one, whichever it is.
+            self._current_map, self.has_map = None, False
+            raise
         self._current_map = grid_map
         self.has_map = True
 
     def on_odom_msg(self, msg: Any) -> None:
+        problem = _not_a_rotation(msg.pose.pose.orientation)
+        if problem is not None:
+            self.log("warn", "odom_quaternion", f"ignoring odometry: {problem}")
+            return
         self.on_odometry(*conversions.odometry_from_msg(msg))
 
     def on_odometry(self, stamp: float, pose: NDArray[np.float64]) -> None:
         """The base's odometry pose ``(3,)`` in the odom frame at ``stamp`` [s] (from the odom topic or /tf)."""
         if not np.all(np.isfinite(pose)):
             self.log("warn", "odom_nan", f"ignoring odometry with non-finite pose {pose.tolist()!r}")
+            return
+        if _far(pose):
+            self.log("warn", "odom_far", f"ignoring odometry at ({pose[0]!r}, {pose[1]!r}) m: more than "
+                     f"{MAX_COORDINATE_M:g} m from the odometry origin")
             return
         if not self._admit("odometry", stamp):
             return
@@ -304,24 +353,34 @@ class LocalizerAdapter:
         self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
 
     def on_initial_pose_msg(self, msg: Any) -> bool:
-        """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, non-finite)."""
+        """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, no rotation, non-finite, far)."""
         frame = msg.header.frame_id.lstrip("/")
         if frame != self.global_frame:
             self.log("warn", "initialpose_frame", f"ignoring initial pose in frame {frame!r}: initial poses must be in "
                      f"the global frame {self.global_frame!r} (global_frame_id)")
             return False
+        problem = _not_a_rotation(msg.pose.pose.orientation)
+        if problem is not None:
+            self.log("warn", "initialpose", f"ignoring initial pose: {problem}")
+            return False
         pose, covariance = conversions.initial_pose_from_msg(msg)
         if not np.all(np.isfinite(pose)):
             self.log("warn", "initialpose", f"ignoring initial pose with non-finite values {pose.tolist()!r}")
+            return False
+        if _far(pose):
+            self.log("warn", "initialpose", f"ignoring initial pose at ({pose[0]!r}, {pose[1]!r}) m: more than "
+                     f"{MAX_COORDINATE_M:g} m from the origin of {frame!r}")
             return False
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
         then, now = self.odometry.at(stamp), self.odometry.latest
         if stamp > 0.0 and then is not None and now is not None:
             # A pose of the past (RViz stamps it when clicked): moved on by the odometry since, as nav2_amcl does.
             pose = compose(pose, relative(then, now))
-        if not _positive_definite(covariance):
+        problem = _covariance_problem(covariance)
+        if problem is not None:
+            shown = [[float(f"{value:.6g}") for value in row] for row in covariance.tolist()]  # np.round overflows
             self.log("warn", "initialpose_covariance",
-                     f"initial pose covariance (x, y, yaw) {np.round(covariance, 6).tolist()!r} is not positive definite: "
+                     f"initial pose covariance (x, y, yaw) {shown!r} is {problem}: "
                      f"using the default spread (std {DEFAULT_INITIAL_STD[0]:g} m, {DEFAULT_INITIAL_STD[1]:g} m, "
                      f"{math.degrees(DEFAULT_INITIAL_STD[2]):g} deg)")
             self.set_initial_pose(pose)
@@ -454,10 +513,16 @@ class LocalizerAdapter:
         )
 
     def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
+        """The output of an estimate; a LOST one, or one whose pose or covariance is not finite, gets no pose and
+        no ``map -> odom``."""
         base = self.to_base_estimate(estimate)
         odom = self.odometry.at(base.stamp)
+        has_pose = base.status is not LocalizerStatus.LOST and _finite_estimate(base)
+        if not has_pose and base.status is not LocalizerStatus.LOST:
+            self.log("warn", "estimate_nan", f"{base.status.value} estimate at {base.stamp:.3f} s has a non-finite pose "
+                     f"{base.pose.tolist()!r} or covariance: no pose published")
         return AdapterOutput(
             base, update_ms, self.node_name, self.max_candidates, self._extras_builder, frame_id=self.global_frame,
-            map_to_odom=None if odom is None else map_to_odom(base.pose, odom),
+            map_to_odom=None if odom is None or not has_pose else map_to_odom(base.pose, odom),
             odometry_lag=base.stamp - self._last_odometry_stamp,
         )

@@ -33,7 +33,10 @@ class DistanceField:
 
     def __init__(self, grid_map: GridMap) -> None:
         self.distance = np.ascontiguousarray(grid_map.distance_field(), dtype=np.float64)
-        gy, gx = np.gradient(self.distance, grid_map.resolution)
+        # Along an axis of one cell there is no gradient (np.gradient needs two): zero, and lookup() has no
+        # cell pair to interpolate there anyway (off-map).
+        gy, gx = (np.gradient(self.distance, grid_map.resolution, axis=axis) if self.distance.shape[axis] > 1
+                  else np.zeros_like(self.distance) for axis in (0, 1))
         self.grad_x = np.ascontiguousarray(gx)
         self.grad_y = np.ascontiguousarray(gy)
         self.resolution = float(grid_map.resolution)

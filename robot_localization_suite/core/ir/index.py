@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..cache import cache_budget_bytes, default_cache_dir, load_cached, prune_cache
 from ..errors import CacheError
 from ..grid_map import GridMap
 from ..progress import progress_disabled
@@ -488,13 +488,9 @@ class IRIndex:
             budget = cache_budget_bytes(cache_budget_mb)
             directory = (cache_dir or default_cache_dir()) / "ir"
             path = directory / f"{cls.cache_key(grid_map, fan, settings)}.npz"
-            if path.is_file():
-                try:
-                    index = cls.load(path, fan, settings)
-                    mark_used(path)
-                    return index
-                except CacheError as exc:
-                    _LOG.warning("%s; rebuilding it", exc)
+            cached = load_cached(path, lambda file: cls.load(file, fan, settings), what="IR", warn=_LOG.warning)
+            if cached is not None:
+                return cached
         index = cls.build(grid_map, fan, settings, progress=progress)
         if path is not None:
             try:

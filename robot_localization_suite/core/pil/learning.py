@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..cache import cache_budget_bytes, default_cache_dir, load_cached, prune_cache
 from ..errors import CacheError, MapError
 from ..grid_map import GridMap
 from ..progress import progress_disabled
@@ -299,14 +299,12 @@ def learn_pseudo_images(
     path = Path(cache_dir) if cache_dir else default_cache_dir()
     path = path / "pil" / f"pil_{key}.npz"
 
-    if use_cache and path.is_file():
-        try:
-            learning = _load_cache(path, key, grid, angle_count)
-            learning.seconds = time.perf_counter() - start
-            mark_used(path)
-            return learning
-        except CacheError as exc:
-            emit("warn", f"{exc}; relearning and rewriting it")
+    if use_cache:
+        cached = load_cached(path, lambda file: _load_cache(file, key, grid, angle_count), what="PIL",
+                             warn=lambda text: emit("warn", text), then="relearning and rewriting it")
+        if cached is not None:
+            cached.seconds = time.perf_counter() - start
+            return cached
 
     lines, columns, centres = grid.all_centres()
     valid = grid_map.is_free(centres)
