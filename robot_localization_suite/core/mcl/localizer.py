@@ -346,7 +346,7 @@ class MonteCarloLocalizer:
         Returns the kept beams and the skipped ones (None when none is).
         """
         s = self.settings
-        if not (s.do_beamskip and self._converged() and isinstance(self._sensor, LikelihoodFieldModel)
+        if not (s.do_beamskip and self._trusted and isinstance(self._sensor, LikelihoodFieldModel)
                 and len(beams.angles)):
             return beams, None
         agreement = self._sensor.beam_agreement(self.particles, self.weights, beams.angles, beams.ranges,
