@@ -198,14 +198,14 @@ def record_scenario(scenario: Path, bag_dir: Path, seconds: float) -> Path:
     return bag_dir
 
 
-def replay_rate(bag_dir: Path, localizer: str) -> dict[str, Any]:
-    """``rls_bench``'s global-mode replay of ``bag_dir`` through ``localizer``: its summary fields."""
+def replay_rate(bag_dir: Path, localizer: str, mode: str = "global") -> dict[str, Any]:
+    """``rls_bench``'s replay of ``bag_dir`` through ``localizer`` in ``mode`` (global, tracking): its summary fields."""
     from .bench import load_reference, registry_spec, replay_localizer, resolve_map, summarize_run
 
     reference = load_reference(bag_dir)
     grid_map, _ = resolve_map(reference, None)
     spec = registry_spec(localizer).for_bag(reference.name)
-    record = replay_localizer(reference, spec, grid_map, mode="global", sample_rss=False)
+    record = replay_localizer(reference, spec, grid_map, mode=mode, sample_rss=False)
     fields, _ = summarize_run(record, reference)
     return fields
 
@@ -217,18 +217,20 @@ def _params_file(localizer: str) -> Path:
 
 
 def live_runs(localizers: Sequence[str], scenario: Path, seconds: float, *, speed: float = 1.0,
-              sim_first: bool = False, env: dict[str, str] | None = None,
+              sim_first: bool = False, tracking: Sequence[str] = (), env: dict[str, str] | None = None,
               log: Callable[[str], None] = print) -> list[LiveResult]:
     """``localizers`` (together) configured and activated with the scenario's map, then ``scan_sim`` live.
 
     Each node is scored over the first ``seconds`` of simulated time. ``sim_first``: ``scan_sim`` runs
     first and the nodes take the map from ``/map`` (nav2's bring-up); scored from their activation on
-    (not comparable to the replay, which starts with the scenario).
+    (not comparable to the replay, which starts with the scenario). ``tracking``: nodes given the
+    scenario's start pose (``initial_pose.*``, applied at activation), as the replay's tracking mode.
     """
     from ..core.sim.settings import ScanSimSettings, build_scenario
     from ..launch.lifecycle import LifecycleManager
 
-    map_yaml = build_scenario(ScanSimSettings(scenario=str(scenario)), scenario).map_path
+    world = build_scenario(ScanSimSettings(scenario=str(scenario)), scenario)
+    map_yaml = world.map_path
 
     def start_sim() -> NodeProcess:
         return NodeProcess("robot_localization_suite.nodes.scan_sim", "--ros-args", "-p", f"scenario:={scenario}",
@@ -240,6 +242,10 @@ def live_runs(localizers: Sequence[str], scenario: Path, seconds: float, *, spee
         args = ["--ros-args", "--params-file", str(_params_file(name))]
         if map_yaml and not sim_first:
             args += ["-p", f"map_yaml:={map_yaml}"]
+        if name in tracking:
+            x, y, yaw = (float(v) for v in world.start)
+            args += ["-p", "set_initial_pose:=true", "-p", f"initial_pose.x:={x!r}", "-p", f"initial_pose.y:={y!r}",
+                     "-p", f"initial_pose.yaw:={yaw!r}"]
         nodes[name] = NodeProcess(f"robot_localization_suite.nodes.{name}", *args, env=env)
     probe = Probe(list(localizers))
     manager = LifecycleManager(list(localizers), log=lambda _line: None)
@@ -340,6 +346,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--sim-first", action="store_true",
                         help="live: scan_sim first, the map from /map, scored from activation (implies --no-replay)")
     parser.add_argument("--together", action="store_true", help="live: every localizer at once on one scan_sim")
+    parser.add_argument("--tracking", nargs="*", default=[],
+                        help="localizers started from the scenario's start pose (live and replay: tracking mode)")
     parser.add_argument("--startup", action="store_true",
                         help="time from configure to the first map -> odom instead (scan_sim already running)")
     parser.add_argument("--cache-dir", default=None, help="RLS_CACHE_DIR of the nodes (an empty dir: cold cache)")
@@ -362,12 +370,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="rls_live_") as folder:
         bag = record_scenario(scenario, Path(folder) / "bag", options.seconds) if not (options.no_replay or options.sim_first) else None
-        together = live_runs(names, scenario, options.seconds, speed=options.speed, sim_first=options.sim_first,
-                             env=env) if options.together else None
+        def run(chosen: list[str]) -> list[LiveResult]:
+            return live_runs(chosen, scenario, options.seconds, speed=options.speed, sim_first=options.sim_first,
+                             tracking=options.tracking, env=env)
+
+        together = run(names) if options.together else None
         for index, name in enumerate(names):
-            live = together[index] if together is not None else live_runs(
-                [name], scenario, options.seconds, speed=options.speed, sim_first=options.sim_first, env=env)[0]
-            replay = replay_rate(bag, name) if bag is not None else {}
+            live = together[index] if together is not None else run([name])[0]
+            mode = "tracking" if name in options.tracking else "global"
+            replay = replay_rate(bag, name, mode) if bag is not None else {}
             rows.append((name, live, replay))
             print(f"{name}: replay correct_rate {replay.get('correct_rate')} over {replay.get('outputs')} outputs",
                   flush=True)
