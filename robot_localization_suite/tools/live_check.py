@@ -1,7 +1,8 @@
 """Localizer nodes live over DDS against the replay of the same scenario, and their start-up time.
 
     python -m robot_localization_suite.tools.live_check [--scenario office_kidnap] [--seconds 40]
-        [--localizers ial_localizer ...] [--speed 1.0] [--no-replay]
+        [--localizers ial_localizer ...] [--speed 1.0] [--together] [--tracking NAME ...] [--no-replay]
+        [--sim-first]
     python -m robot_localization_suite.tools.live_check --startup [--localizers ...] [--cache-dir DIR]
 
 Live: the node runs as a process with its packaged params file (``config/<name>.yaml``) and the
@@ -12,6 +13,7 @@ same scenario recorded with ``scan_sim``'s recorder is replayed through the same
 ``rls_bench`` does (global mode). Both are scored by ``core/metrics.py`` over the first ``--seconds``.
 ``--startup``: with ``scan_sim`` already running and the map from ``/map`` (nav2's bring-up), the time
 from the ``configure`` request to the first ``map -> odom`` on ``/tf``. Everything on loopback DDS.
+Options and measured figures: docs/benchmark.md, "Live and replay".
 """
 
 from __future__ import annotations
