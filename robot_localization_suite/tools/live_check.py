@@ -353,7 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--startup", action="store_true",
                         help="time from configure to the first map -> odom instead (scan_sim already running)")
     parser.add_argument("--cache-dir", default=None, help="RLS_CACHE_DIR of the nodes (an empty dir: cold cache)")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: 1 + pid % 100)")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: 1 + pid %% 100)")
     options = parser.parse_args(argv)
     use_loopback(options.domain_id if options.domain_id is not None else 1 + os.getpid() % 100)
     env = dict(os.environ)
