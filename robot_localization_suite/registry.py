@@ -35,6 +35,8 @@ __all__ = [
     "LOCALIZER_NAMES",
     "plugin",
     "config_dir",
+    "resolve_config_path",
+    "resolve_scenario_path",
 ]
 
 
@@ -290,3 +292,22 @@ def resolve_config_path(path: str, what: str) -> Path:
         return candidate
     packaged = config_dir() / candidate
     return packaged if packaged.is_file() else candidate
+
+
+def resolve_scenario_path(name: str) -> Path | None:
+    """A scenario path as given, else ``config/scenarios/<name>[.yaml]`` of the package; None when empty.
+
+    Raises:
+        ScenarioError: naming a scenario that is neither.
+    """
+    from .core.errors import ScenarioError
+
+    if not name:
+        return None
+    path = Path(name)
+    if path.is_file():
+        return path
+    for candidate in (config_dir() / "scenarios" / name, config_dir() / "scenarios" / f"{name}.yaml"):
+        if candidate.is_file():
+            return candidate
+    raise ScenarioError(f"scenario {name!r} is neither a file nor a name in {str(config_dir() / 'scenarios')!r}")

@@ -91,11 +91,29 @@ def test_out_of_order_odometry_is_ignored_and_logged() -> None:
     adapter.on_odom_msg(odom_msg(2.0, [1.0, 0.0, 0.0]))
     adapter.on_odom_msg(odom_msg(1.0, [9.0, 9.0, 0.0]))  # older than the last one
     adapter.on_odom_msg(odom_msg(3.0, [2.0, 0.0, 0.0]))
+    adapter.on_odom_msg(odom_msg(4.0, [float("nan"), 0.0, 0.0]))
+    adapter.on_scan_msg(scan_msg(5.0, [1.0] * 5))  # odometry reaches the localizer with the next scan
     assert [stamp for stamp, _pose in core.odometry] == [2.0, 3.0]
     assert "older than the last one" in logs.text()
-    adapter.on_odom_msg(odom_msg(4.0, [float("nan"), 0.0, 0.0]))
-    assert len(core.odometry) == 2
     assert "non-finite" in logs.text()
+
+
+def test_a_scan_is_weighed_after_the_odometry_of_its_stamp_and_before_newer_odometry() -> None:
+    """Live, a scan arrives after odometry newer than its stamp (the driver publishes its sweep a period
+    later): that odometry waits for the next scan, as in a replay in log order."""
+    adapter, core, _logs = make_adapter()
+    for stamp in (1.0, 1.1, 1.2, 1.3):
+        adapter.on_odom_msg(odom_msg(stamp, [stamp, 0.0, 0.0]))
+    output = adapter.on_scan_msg(scan_msg(1.1, [1.0] * 5))
+    assert [stamp for stamp, _pose in core.odometry] == [1.0, 1.1]
+    assert output is not None and output.estimate.pose[0] == pytest.approx(1.1)  # the echo: odometry at 1.1
+    assert output.map_to_odom is not None and np.allclose(output.map_to_odom, 0.0)  # odometry at the scan's stamp
+    adapter.on_scan_msg(scan_msg(1.3, [1.0] * 5))
+    assert [stamp for stamp, _pose in core.odometry] == [1.0, 1.1, 1.2, 1.3]
+    # an initial pose is where the robot is now: every odometry so far goes first
+    adapter.on_odom_msg(odom_msg(1.4, [1.4, 0.0, 0.0]))
+    adapter.set_initial_pose(np.array([1.0, 2.0, 0.0]))
+    assert core.odometry[-1][0] == 1.4
 
 
 def test_nan_scan_is_rejected_without_raising() -> None:
@@ -147,12 +165,11 @@ def test_mount_offset_round_trip() -> None:
     adapter, core, _logs = make_adapter(mount)
     base = np.array([1.0, 2.0, np.pi / 2])
     adapter.on_odom_msg(odom_msg(1.0, base.tolist()))
+    output = adapter.on_scan_msg(scan_msg(1.5, [1.0] * 5))
+    assert output is not None
     # The core sees the laser: 0.2 m ahead and 0.1 m to the left of a base facing +y.
     laser = core.odometry[-1][1]
     np.testing.assert_allclose(laser, [0.9, 2.2, np.pi / 2 + 0.3], atol=1e-9)
-
-    output = adapter.on_scan_msg(scan_msg(1.5, [1.0] * 5))
-    assert output is not None
     # The echoed laser pose comes back as the base pose, in the message too.
     np.testing.assert_allclose(output.estimate.pose[:2], base[:2], atol=1e-9)
     assert abs(angle_difference(output.estimate.pose[2], base[2])) < 1e-9

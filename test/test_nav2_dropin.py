@@ -9,11 +9,8 @@ nav2 relies on: ``map -> odom`` composed with ``odom -> base_link`` lands on the
 from __future__ import annotations
 
 import math
-import os
-import re
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -27,6 +24,7 @@ from robot_localization_suite.launch.lifecycle import LifecycleManager
 from robot_localization_suite.ros.conversions import initial_pose_to_msg, odometry_from_msg
 from robot_localization_suite.ros.qos import POSE_QOS, RELIABLE_QOS, TF_QOS, TF_STATIC_QOS
 from robot_localization_suite.ros.tf import TFMessage, transform_from_msg
+from robot_localization_suite.tools.live_check import NodeProcess as Process
 
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.skipif(TFMessage is None, reason="tf2_msgs is not installed (make builds it)")
@@ -63,50 +61,6 @@ def write_world(folder: Path) -> tuple[Path, Path]:
     params_path = folder / "nav2_params.yaml"
     params_path.write_text(yaml.safe_dump(params))
     return scenario_path, params_path
-
-
-class Process:
-    """A node process whose output lines are collected; wait_for() blocks until a pattern shows up."""
-
-    def __init__(self, *args: str) -> None:
-        env = dict(os.environ)  # conftest.py: loopback DDS and this run's ROS_DOMAIN_ID
-        env["PYTHONUNBUFFERED"] = "1"
-        env["RCUTILS_LOGGING_BUFFERED_STREAM"] = "0"
-        self.process = subprocess.Popen([sys.executable, "-m", *args], env=env, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, text=True)
-        self.lines: list[str] = []
-        self._changed = threading.Condition()
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            with self._changed:
-                self.lines.append(line.rstrip("\n"))
-                self._changed.notify_all()
-
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def wait_for(self, pattern: str, timeout: float) -> re.Match[str]:
-        deadline = time.monotonic() + timeout
-        with self._changed:
-            while True:
-                match = re.search(pattern, self.text())
-                if match:
-                    return match
-                remaining = deadline - time.monotonic()
-                assert remaining > 0, f"no {pattern!r} within {timeout} s in:\n{self.text()}"
-                assert self.process.poll() is None, f"exited ({self.process.returncode}) without {pattern!r}:\n{self.text()}"
-                self._changed.wait(min(remaining, 1.0))
-
-    def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-        try:
-            self.process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
 
 
 class Listener:

@@ -21,17 +21,15 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..core.errors import LocalizationSuiteError, ScenarioError, SettingsError
 from ..core.settings import from_params, params_from_ros_args, unknown_params
-from ..core.sim.settings import ScanSimSettings, build_scenario
-from ..core.sim.simulator import Simulator
+from ..core.sim.settings import ScanSimSettings
 
-__all__ = ["NODE_NAME", "DESCRIPTION", "TOPICS", "resolve_scenario_path", "sanitize_command", "settings_from_args",
+__all__ = ["NODE_NAME", "DESCRIPTION", "TOPICS", "sanitize_command", "settings_from_args",
            "main"]
 
 NODE_NAME = "scan_sim"
@@ -44,31 +42,6 @@ TOPICS = """  out: map (nav_msgs/OccupancyGrid, transient local), scan (sensor_m
        ground_truth (nav_msgs/Odometry in map),
        camera/image_raw (sensor_msgs/Image, when the scenario has a camera)
   in:  cmd_vel (geometry_msgs/Twist, only without a scenario)"""
-
-
-def resolve_scenario_path(name: str) -> Path | None:
-    """A scenario path as given, else ``config/scenarios/<name>[.yaml]`` of the package; None when empty.
-
-    Raises:
-        ScenarioError: naming a scenario that is neither.
-    """
-    if not name:
-        return None
-    path = Path(name)
-    if path.is_file():
-        return path
-    from ..registry import config_dir
-
-    for candidate in (config_dir() / "scenarios" / name, config_dir() / "scenarios" / f"{name}.yaml"):
-        if candidate.is_file():
-            return candidate
-    raise ScenarioError(f"scenario {name!r} is neither a file nor a name in {str(config_dir() / 'scenarios')!r}")
-
-
-def make_simulator(settings: ScanSimSettings) -> Simulator:
-    """The simulator the settings describe (scenario with overrides, or the cmd_vel world)."""
-    scenario = build_scenario(settings, resolve_scenario_path(settings.scenario))
-    return Simulator(scenario, seed=None if settings.seed < 0 else settings.seed)
 
 
 def sanitize_command(
@@ -115,7 +88,7 @@ def _make_node(options: argparse.Namespace) -> Any:
 
     from ..ros.params import declare_settings, parameter_values
     from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
-    from ..ros.sim_messages import StepMessages
+    from ..ros.sim_messages import StepMessages, make_simulator
     from ..ros.tf import TFMessage
     from .common import guarded
 
@@ -257,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 settings = settings_from_args(argv)
                 if not settings.scenario:
                     raise ScenarioError("--record needs a scenario (-p scenario:=FILE)")
-                from ..ros.sim_messages import record
+                from ..ros.sim_messages import make_simulator, record
 
                 record(known.record, make_simulator(settings), settings, stop_requested=stop_requested)
             except LocalizationSuiteError as exc:

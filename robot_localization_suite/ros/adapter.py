@@ -13,6 +13,13 @@ is exact for a rigid mount and keeps every core method free of the offset. A
 node that learns the mount from ``/tf_static`` only with the first scan defers
 it (``defer_mount``): odometry is held until :meth:`LocalizerAdapter.set_mount`.
 
+Odometry reaches the localizer in step with the sensor: before a scan (image) stamped ``t``, the
+odometry stamped up to ``t`` is handed on and newer odometry waits for a later input. A live scan
+arrives after odometry newer than its stamp (a laser driver stamps the start of its sweep and
+publishes it a period later); given that odometry first, a method would move its estimate to a
+later instant than the scan it then weighs (IAL's bounded-error boxes lose the true pose in turns).
+A replayed bag, in log order, gives the same sequence.
+
 Each output also carries ``map -> odom`` as nav2_amcl computes it: the estimate
 composed with the inverse of the odometry at the estimate's stamp.
 """
@@ -130,7 +137,8 @@ def _same_map(a: Any, b: Any) -> bool:
 
 # Spread of an initial pose whose covariance cannot be used: ROS 1 amcl's (0.5 m, 0.5 m, pi/12 rad).
 DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
-# Odometry poses held at most while the mount is not known (a few minutes of a fast odometry source).
+# Odometry poses held at most for a later sensor input (a few minutes of a fast odometry source):
+# beyond, the oldest go to the localizer (or are dropped while the mount is not known).
 _MAX_HELD_ODOMETRY = 20_000
 
 
@@ -245,8 +253,10 @@ class LocalizerAdapter:
         self.global_frame = global_frame
         self.mount = LaserMount()
         self._mount_inv: NDArray[np.float64] = np.zeros(3)
-        # Odometry held while the mount is not known yet (defer_mount); None once it is.
-        self._held_odometry: list[tuple[float, NDArray[np.float64]]] | None = [] if defer_mount else None
+        # The base's odometry not yet given to the localizer: newer than the last sensor input, or
+        # (defer_mount) waiting for the mount.
+        self._held_odometry: list[tuple[float, NDArray[np.float64]]] = []
+        self._mount_known = False
         self._extras_builder = extras_builder
         self.clock = InputClock(max_future_s, time_jump_reset_s, clock)
         # The base's odometry (before the mount), for map -> odom at an estimate's stamp.
@@ -270,18 +280,28 @@ class LocalizerAdapter:
 
     @property
     def mount_known(self) -> bool:
-        return self._held_odometry is None
+        return self._mount_known
 
     def set_mount(self, mount: LaserMount) -> None:
-        """Use ``mount`` from now on; held odometry (``defer_mount``) goes to the localizer with it."""
+        """Use ``mount`` from now on; held odometry goes to the localizer with the next sensor input."""
         self.mount = mount
         self._mount_inv = inverse(mount.pose)
+        self._mount_known = True
         if hasattr(self.localizer, "set_laser_mount"):
             # One source of the mount: a method whose model needs it (IAL's base-motion bounds) gets it here.
             self.localizer.set_laser_mount(mount)
-        held, self._held_odometry = self._held_odometry, None
-        for stamp, pose in held or ():
-            self.localizer.on_odometry(stamp, compose(pose, mount.pose))
+
+    def _release_odometry(self, until: float = math.inf) -> None:
+        """Give the localizer the held odometry stamped up to ``until`` [s] (all of it by default)."""
+        if not self._mount_known:
+            return
+        count = 0
+        for stamp, pose in self._held_odometry:
+            if stamp > until:
+                break
+            self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
+            count += 1
+        del self._held_odometry[:count]
 
     # -- inputs -------------------------------------------------------------------
     def on_map_msg(self, msg: Any) -> bool:
@@ -346,11 +366,12 @@ class LocalizerAdapter:
             return
         self.odometry.add(stamp, pose)  # a stamp far in the past starts its new timeline, as the clock did
         self._last_odometry_stamp = stamp
-        if self._held_odometry is not None:
-            self._held_odometry.append((stamp, pose))
+        self._held_odometry.append((stamp, pose))
+        if len(self._held_odometry) > _MAX_HELD_ODOMETRY:
+            # No sensor input for a long while: the oldest go on now (or are dropped without a mount).
+            excess = len(self._held_odometry) - _MAX_HELD_ODOMETRY
+            self._release_odometry(self._held_odometry[excess - 1][0])
             del self._held_odometry[:-_MAX_HELD_ODOMETRY]
-            return
-        self.localizer.on_odometry(stamp, compose(pose, self.mount.pose))
 
     def on_initial_pose_msg(self, msg: Any) -> bool:
         """An initial pose (RViz "2D Pose Estimate"); False when refused (another frame, no rotation, non-finite, far)."""
@@ -393,6 +414,7 @@ class LocalizerAdapter:
         if covariance is None:
             covariance = np.diag(np.square(DEFAULT_INITIAL_STD))
         self._info("info", f"initial pose x={pose[0]:.2f} y={pose[1]:.2f} yaw={pose[2]:.2f}")
+        self._release_odometry()  # the pose is where the robot is now: at the newest odometry
         self.localizer.set_initial_pose(compose(pose, self.mount.pose), covariance)
 
     def reinitialize(self) -> None:
@@ -423,6 +445,7 @@ class LocalizerAdapter:
         laser = self._laser
         if laser is None:
             raise TypeError(f"{type(self.localizer).__name__} is not a laser Localizer: it cannot take scans")
+        self._release_odometry(scan.stamp)
         return self._run(lambda: laser.on_scan(scan))
 
     def preparation_due(self, msg: Any) -> bool:
@@ -464,6 +487,7 @@ class LocalizerAdapter:
         camera = self._camera
         if camera is None:
             raise TypeError(f"{type(self.localizer).__name__} is not a CameraLocalizer: it cannot take images")
+        self._release_odometry(stamp)
         return self._run(lambda: camera.on_image(stamp, image))
 
     def _admit(self, stream: str, stamp: float) -> bool:
@@ -476,6 +500,7 @@ class LocalizerAdapter:
         elif verdict == "older":
             self.log("warn", f"{stream}_time", f"ignoring {stream} stamped {stamp:.3f} s, older than the last one")
         elif verdict == "reset":
+            self._held_odometry.clear()  # odometry of the old timeline
             self.log("info", "time_jump", f"time jumped back to {stamp:.3f} s (more than {self.clock.time_jump_reset_s:g} s): "
                        "starting a new timeline (a bag looped or a simulator restarted?)")
         return verdict in ("ok", "reset")

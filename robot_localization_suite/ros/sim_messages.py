@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from ..core.sim.settings import ScanSimSettings
+from ..core.sim.settings import ScanSimSettings, build_scenario
 from ..core.sim.simulator import SimulationStep, Simulator
 from . import conversions
 from .bag import BagWriter
 from .tf import TFMessage, tf_message, transform_to_msg
 
-__all__ = ["StepMessages", "record"]
+__all__ = ["StepMessages", "make_simulator", "record"]
 
 
 class StepMessages:
@@ -76,6 +76,14 @@ class StepMessages:
         if step.image is not None:
             out.append(("camera/image_raw", conversions.image_to_msg(seconds, s.camera_frame, step.image)))
         return out
+
+
+def make_simulator(settings: ScanSimSettings) -> Simulator:
+    """The simulator the settings describe (scenario with overrides, or the cmd_vel world)."""
+    from ..registry import resolve_scenario_path
+
+    scenario = build_scenario(settings, resolve_scenario_path(settings.scenario))
+    return Simulator(scenario, seed=None if settings.seed < 0 else settings.seed)
 
 
 def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,

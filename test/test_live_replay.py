@@ -1,0 +1,44 @@
+"""Live equals replay: each laser localizer run live over DDS scores as the replay of the same scenario.
+
+One ``scan_sim`` plays the first 22 s of ``office_kidnap`` (the tour before its first kidnapping at
+25.5 s, with the probe's DDS discovery as slack: 220 scans) in real time to every laser localizer
+node at once, each configured and activated through ``lifecycle_msgs`` with its packaged params file;
+the same 22 s recorded by ``scan_sim``'s recorder are replayed through the benchmark's adapter. Live
+drops the scans a node is too slow for (2 loaded cores) and starts after DDS discovery, so the
+correct rates are compared within the issue's 5 points, not for equality. PIL, IR and IAL start
+globally; MCL from the start pose (tracking, both ways): its global start on this window is a draw
+(replayed with random_seed 0-7, 3 of 8 never fix), which would test luck, not the node. Measured
+(docs/benchmark.md, "Live and replay"): equal rates here, 0.3-3 points apart on 40-90 s windows
+with the kidnapping; with scans updated before the odometry of their stamp, IAL fell to 0.19-0.23
+live against 1.0.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from robot_localization_suite.ros.tf import TFMessage
+from robot_localization_suite.tools.live_check import live_runs, record_scenario, replay_rate, scenario_path
+
+pytestmark = pytest.mark.skipif(TFMessage is None, reason="tf2_msgs is not installed (make builds it)")
+
+LOCALIZERS = ["mcl_baseline", "pil_localizer", "ir_initializer", "ial_localizer"]
+TRACKING = ["mcl_baseline"]
+SECONDS = 22.0
+TOLERANCE = 0.05
+
+
+def test_every_laser_localizer_live_scores_within_5_points_of_its_replay(tmp_path: Path) -> None:
+    scenario = scenario_path("office_kidnap")
+    bag = record_scenario(scenario, tmp_path / "bag", SECONDS)
+    live = {result.localizer: result for result in live_runs(LOCALIZERS, scenario, SECONDS, tracking=TRACKING)}
+    replay = {name: replay_rate(bag, name, "tracking" if name in TRACKING else "global") for name in LOCALIZERS}
+    lines = {name: f"{name}: live {live[name].correct_rate} over {live[name].outputs} outputs, "
+                   f"replay {replay[name]['correct_rate']} over {replay[name]['outputs']}" for name in LOCALIZERS}
+    print("\n" + "\n".join(lines.values()))
+    for name in LOCALIZERS:
+        assert live[name].outputs >= 20, lines[name]  # localized live at all (MCL updates every 0.25 m: ~50 in 22 s)
+        assert live[name].correct_rate is not None and replay[name]["correct_rate"] is not None, lines[name]
+        assert abs(live[name].correct_rate - replay[name]["correct_rate"]) <= TOLERANCE, lines[name]
