@@ -49,7 +49,8 @@ def write_world(folder: Path) -> tuple[Path, Path]:
         # nav2_amcl's own (nav2_params.yaml), with nav2's frames and TF odometry
         "alpha1": 0.02, "alpha2": 0.02, "alpha3": 0.02, "alpha4": 0.02, "alpha5": 0.02,
         "base_frame_id": "base_link", "global_frame_id": "map", "odom_frame_id": "odom",
-        "beam_skip_distance": 0.5, "do_beamskip": False, "scan_topic": "scan",  # nav2's, not ours
+        "beam_skip_distance": 0.5, "do_beamskip": False,  # nav2's beam skipping carries over
+        "save_pose_rate": 0.5, "scan_topic": "scan",  # nav2's, not ours
         "laser_likelihood_max_dist": 2.0, "laser_model_type": "likelihood_field", "max_beams": 60,
         "max_particles": 2000, "min_particles": 500, "pf_err": 0.05, "pf_z": 0.99,
         "robot_model_type": "nav2_amcl::DifferentialMotionModel", "sigma_hit": 0.2, "tf_broadcast": True,
@@ -182,7 +183,7 @@ def test_brought_up_like_nav2_it_broadcasts_map_to_odom_on_the_ground_truth(brin
     assert manager.change_state("amcl", "configure", 120.0)
     # the nav2 parameters it has no use for are named once, at configure
     line = amcl.wait_for(r"not used by this node: (.*)", 10).group(1)
-    assert line.split(", ") == ["beam_skip_distance", "do_beamskip", "initial_pose.z", "scan_topic"]
+    assert line.split(", ") == ["initial_pose.z", "save_pose_rate", "scan_topic"]
     assert manager.change_state("amcl", "activate", 30.0)
     amcl.wait_for(r"starting from initial_pose\.\* parameters", 10)
     amcl.wait_for(r"laser mount from /tf_static base_link -> laser: \(0\.2 m, 0\.05 m, 0 rad\)", 30)
