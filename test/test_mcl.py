@@ -24,6 +24,7 @@ from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
 from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
+from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 
 
@@ -451,3 +452,49 @@ def test_a_rival_cluster_with_ambiguous_weight_rules_out_localized(office: GridM
 
     assert status(0.1) is LocalizerStatus.LOCALIZED
     assert status(0.3) is LocalizerStatus.AMBIGUOUS
+
+
+def _corridor(*, boxes: bool) -> GridMap:
+    """A 24 m corridor, 3 m wide, with door niches; outside unknown and, through the niches' unknown sides,
+    open (as in a SLAM map). With ``boxes``: unmapped boxes along both walls."""
+    resolution = 0.05
+    data = np.full((int(4.0 / resolution), int(24.0 / resolution)), -1, dtype=np.int8)
+
+    def box(x0: float, y0: float, x1: float, y1: float, value: int = 100) -> None:
+        data[int(y0 / resolution): int(np.ceil(y1 / resolution)), int(x0 / resolution): int(np.ceil(x1 / resolution))] = value
+
+    box(0.0, 0.5, 24.0, 3.5, 0)
+    box(0.0, 0.35, 24.0, 0.5)
+    box(0.0, 3.5, 24.0, 3.65)
+    box(0.0, 0.35, 0.15, 3.65)
+    box(23.85, 0.35, 24.0, 3.65)
+    for x in (3.0, 7.4, 13.1, 19.6):
+        box(x, 0.0, x + 0.9, 0.5, 0)
+        box(x, 0.0, x + 0.9, 0.15)
+    for x in (5.2, 10.5, 16.3):
+        box(x, 3.5, x + 0.9, 4.0, 0)
+        box(x, 3.85, x + 0.9, 4.0)
+    if boxes:
+        rng = np.random.default_rng(0)
+        for x in np.arange(1.0, 23.0, 0.9):
+            if rng.random() < 0.75:
+                y0 = 0.5 if rng.random() < 0.5 else 3.1
+                box(x, y0, x + 0.5, y0 + 0.4)
+    return GridMap(data, resolution, (0.0, 0.0))
+
+
+def test_tracking_through_a_corridor_where_a_third_of_the_beams_hit_unmapped_boxes() -> None:
+    # A pose that sends the beams stopped by the boxes through a wall into the unknown outside must not be
+    # credited with unknown_occupancy: without the check that the beam reaches its end point, the cloud
+    # jumped 8-15 m along the corridor.
+    world, mapped = _corridor(boxes=True), _corridor(boxes=False)
+    way = np.array([[1.0, 2.0], [22.5, 2.0], [22.5, 2.05], [1.0, 2.05], [1.0, 2.0]])
+    run = drive(world, steps=800, seed=1, waypoints=way)
+    bare = RayCaster(mapped, max_range=10.0).cast(run.truth, run.scans[0].angles)
+    on_boxes = [np.mean(np.abs(np.minimum(scan.ranges, 10.0) - np.minimum(expected, 10.0)) > 0.2)
+                for scan, expected in zip(run.scans, bare, strict=True)]
+    assert np.median(on_boxes) > 0.3
+    localizer = MonteCarloLocalizer(MclSettings(random_seed=0), mapped)
+    localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
+    errors = _errors(_replay(localizer, run), run)
+    assert len(errors) > 100 and errors[:, 0].max() < 0.2

@@ -81,6 +81,53 @@ def _agreement_kernel(near, origin_x, origin_y, inverse_resolution, poses, weigh
                 out[b] += weights[p]
 
 
+@numba.njit(cache=True, nogil=True)
+def _ray_is_clear(occupied, x0, y0, x1, y1):
+    """Whether the segment from (x0, y0) to (x1, y1) [cells] crosses no occupied cell before the end
+    (sampled every half cell; it leaves the map clear)."""
+    height, width = occupied.shape
+    length = math.hypot(x1 - x0, y1 - y0)
+    steps = int(2.0 * length)
+    for k in range(steps):
+        t = k / (2.0 * length)
+        ix = int(math.floor(x0 + t * (x1 - x0)))
+        iy = int(math.floor(y0 + t * (y1 - y0)))
+        if ix < 0 or iy < 0 or ix >= width or iy >= height:
+            return True
+        if occupied[iy, ix]:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _partial_sum_kernel(table, closed_table, open_unknown, occupied, origin_x, origin_y, inverse_resolution, poses,
+                        beam_x, beam_y, off_map, closed_off_map, out):
+    """As _field_sum_kernel with ``table`` crediting open unknown space (and off the map, ``off_map``), but an
+    end point there counts only if the beam reaches it through no mapped obstacle (else ``closed_*``)."""
+    height, width = table.shape
+    for p in range(poses.shape[0]):
+        x = poses[p, 0]
+        y = poses[p, 1]
+        c = math.cos(poses[p, 2])
+        s = math.sin(poses[p, 2])
+        gx = (x - origin_x) * inverse_resolution
+        gy = (y - origin_y) * inverse_resolution
+        total = 0.0
+        for b in range(beam_x.shape[0]):
+            ex = (x + c * beam_x[b] - s * beam_y[b] - origin_x) * inverse_resolution
+            ey = (y + s * beam_x[b] + c * beam_y[b] - origin_y) * inverse_resolution
+            ix = int(math.floor(ex))
+            iy = int(math.floor(ey))
+            inside = ix >= 0 and iy >= 0 and ix < width and iy < height
+            if inside and not open_unknown[iy, ix]:
+                total += table[iy, ix]
+            elif _ray_is_clear(occupied, gx, gy, ex, ey):
+                total += table[iy, ix] if inside else off_map
+            else:  # through a wall: the unknown space behind it is no explanation
+                total += closed_table[iy, ix] if inside else closed_off_map
+        out[p] = total
+
+
 def _beam_offsets(angles: ArrayLike, ranges: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     angles_arr = np.asarray(angles, dtype=np.float64).reshape(-1)
     ranges_arr = np.asarray(ranges, dtype=np.float64).reshape(-1)
@@ -136,9 +183,9 @@ class LikelihoodFieldModel:
         max_distance: cap on the endpoint-to-obstacle distance [m] (nav2 ``laser_likelihood_max_dist``).
         unknown_occupancy: probability that an unknown cell (or a point off the map) holds an obstacle,
             as the hit Gaussian sees it: with ``partial_map=True``, an end point in open unknown space
-            (``GridMap.open_unknown``) scores at least ``unknown_occupancy`` of a mapped hit, one value
-            for all of it (docs/mcl.md, "Partial maps"); without, and in unknown space sealed off by
-            walls, it scores by its distance to the nearest mapped obstacle, as nav2 does.
+            (``GridMap.open_unknown``) that the beam reaches through no mapped obstacle scores at least
+            ``unknown_occupancy`` of a mapped hit, one value for all of it (docs/mcl.md, "Partial maps");
+            otherwise it scores by its distance to the nearest mapped obstacle, as nav2 does.
     """
 
     def __init__(
@@ -178,6 +225,7 @@ class LikelihoodFieldModel:
             self._hit_term[True] = self.z_hit * np.where(open_unknown, unknown, hit)
             self._off_map_hit_term[True] = self.z_hit * (max(far, self.unknown_occupancy) if open_off_map else far)
         self._far_hit_term = self.z_hit * far
+        self._occupied = np.ascontiguousarray(grid_map.occupied_mask)
         self._near: dict[float, NDArray[np.bool_]] = {}
         self._tables: dict[tuple[float, bool], tuple[NDArray[np.float32], float]] = {}
 
@@ -213,9 +261,20 @@ class LikelihoodFieldModel:
             ``(P,)`` summed per-beam log-likelihoods.
         """
         table, off_map = self.table(max_range, partial_map=partial_map)
-        return field_log_likelihood(
-            table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges, off_map
-        )
+        if not (partial_map and self.unknown_occupancy > 0.0):
+            return field_log_likelihood(
+                table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges, off_map
+            )
+        closed_table, closed_off_map = self.table(max_range)
+        open_unknown, _ = self.grid_map.open_unknown()
+        poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+        beam_x, beam_y = _beam_offsets(angles, ranges)
+        out = np.empty(poses_arr.shape[0], dtype=np.float64)
+        origin = self.grid_map.origin
+        _partial_sum_kernel(table, closed_table, open_unknown, self._occupied, float(origin[0]), float(origin[1]),
+                            1.0 / self.grid_map.resolution, poses_arr, beam_x, beam_y, float(off_map),
+                            float(closed_off_map), out)
+        return out
 
     def beam_agreement(
         self, poses: ArrayLike, weights: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, distance: float
