@@ -297,7 +297,8 @@ def test_odometry_moves_the_window_centre(learned: PilLocalizer, room: GridMap) 
 def test_a_180_degree_scanner_localizes_with_heading_sheets(room: GridMap, tmp_path: Path) -> None:
     localizer = PilLocalizer(_settings(tmp_path, field_of_view=math.pi))
     localizer.set_map(room)
-    assert localizer.layout.angle_count == 114 * 4
+    # The learned angular step stays 2 pi / (57 x 4): 114 sensors around the circle, 2 directions each.
+    assert localizer.layout.angle_count == 114 * 2
     rng = np.random.default_rng(5)
     poses = [np.array([1.0, 2.0, 0.3]), np.array([3.9, 3.0, -1.9]), np.array([6.5, 1.4, 2.8]), np.array([7.0, 3.6, -0.7])]
     for truth in poses:
@@ -323,6 +324,22 @@ def test_a_scan_with_another_field_of_view_warns_and_relearns(room: GridMap, tmp
     # The same geometry again: no new warning.
     again = localizer.global_fix(_scan(room, truth, beams=241, fov=math.radians(240.0)))
     assert "warning" not in again.details
+
+
+def test_a_half_circle_scanner_reuses_the_rays_learned_for_the_full_circle(room: GridMap, tmp_path: Path) -> None:
+    """57 sensors over 180 degrees are 114 around the circle at 2 learned directions each: the same
+    228 directions as 57 sensors over 360 degrees at 4, so only the level functions change."""
+    localizer = PilLocalizer(_settings(tmp_path))  # learned for 360 degrees in set_map
+    localizer.set_map(room)
+    learning = localizer.learning
+    truth = np.array([3.9, 3.0, -1.9])
+    # 180 beams 1 degree apart cover 180 degrees (Scan.field_of_view counts one increment past the end).
+    estimate = localizer.global_fix(_scan(room, truth, beams=180, fov=math.radians(179.0)))
+    assert "the learned rays serve for 180.0 deg" in estimate.details["warning"]
+    assert "relearned" not in estimate.details and localizer.learning is learning
+    assert estimate.details["sheets"] == 8
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.2 and dtheta < 0.1
 
 
 def test_a_shorter_range_max_relearns_with_that_range(room: GridMap, tmp_path: Path) -> None:

@@ -340,13 +340,21 @@ class PilLocalizer:
         if new_range < self._range - 1e-3 or (self._range < self.settings.max_range and new_range > self._range + 1e-3):
             reasons.append(f"the scan's range_max is {scan.range_max:.2f} m but PIL learned R = {self._range:.2f} m")
         if reasons:
-            text = "; ".join(reasons) + f": relearning for {math.degrees(new_fov):.1f} deg and R = {new_range:.2f} m"
+            layout = replace(self._layout, field_of_view=new_fov)
+            if layout.angle_count == self.learning.angle_count and abs(new_range - self._range) <= 1e-3:
+                # The learned rays do not depend on the field of view, only their directions' count.
+                text = "; ".join(reasons) + (f": the learned rays serve for {math.degrees(new_fov):.1f} deg as they are, "
+                                             "its level functions are computed again")
+                self._layout = layout
+                self._mapping = None
+            else:
+                text = "; ".join(reasons) + f": relearning for {math.degrees(new_fov):.1f} deg and R = {new_range:.2f} m"
+                self._layout = layout
+                self._range = new_range
+                self._learn()
+                notes["relearned"] = True
             self._emit("warn", text)
-            self._layout = replace(self._layout, field_of_view=new_fov)
-            self._range = new_range
-            self._learn()
             notes["warning"] = text
-            notes["relearned"] = True
         if self._mapping is None or not self._mapping.matches(scan):
             self._mapping = BeamMapping(self._layout, scan, self.settings.beam_mapping)
         self._ensure_sheets(float(self._mapping.sensor_angles[0]))
@@ -464,7 +472,7 @@ class PilLocalizer:
             if tiles.size:
                 if neighbours is not None:
                     tiles = self._block_representatives(tiles)
-                found.append(correlate_tiles(learning.codes, tiles, table, profile.valid, self._layout.upsampling,
+                found.append(correlate_tiles(learning.codes, tiles, table, profile.valid, self._layout.directions_per_sensor,
                                              keep=keep, per_tile=settings.shift_hypotheses,
                                              coarse_sensors=settings.coarse_sensors, neighbours=neighbours))
         if not found:

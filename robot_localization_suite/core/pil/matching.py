@@ -67,7 +67,9 @@ class SensorLayout:
     Attributes:
         field_of_view: angular span the sensors cover [rad], at most 2 pi.
         sensor_count: ``N_s``.
-        upsampling: learned directions per sensor step.
+        upsampling: learned directions per sensor step of ``N_s`` sensors around the full
+            circle: the learned angular step is about ``2 pi / (N_s * upsampling)`` whatever the
+            field of view (:attr:`directions_per_sensor` is what a sensor step spans).
     """
 
     field_of_view: float
@@ -99,9 +101,14 @@ class SensorLayout:
         return _TWO_PI / self.circle_sensors
 
     @property
+    def directions_per_sensor(self) -> int:
+        """Learned directions per sensor step: ``upsampling`` for 360 degrees, fewer for denser sensors."""
+        return max(1, int(round(self.upsampling * self.sensor_count / self.circle_sensors)))
+
+    @property
     def angle_count(self) -> int:
         """Learned directions over the full circle."""
-        return self.circle_sensors * self.upsampling
+        return self.circle_sensors * self.directions_per_sensor
 
     def sensor_angles(self, scan: Scan) -> NDArray[np.float64]:
         """Sensor angles ``(N_s,)`` in the laser frame [rad] for this scan's beams.
@@ -177,17 +184,17 @@ def sheet_sectors(layout: SensorLayout, first_sensor_angle: float, headings: int
     """Learned-direction indices ``(S, n)`` each heading sheet sees.
 
     360 degrees: one sheet, every direction. Limited FOV: ``S = K`` sheets;
-    sheet j covers the ``N_s * upsampling`` directions from half a sensor step
+    sheet j covers the ``N_s * directions_per_sensor`` directions from half a sensor step
     before ``h_j + phi_0`` (``phi_0`` the first sensor's angle).
     """
     n = layout.angle_count
     if layout.full_circle:
         return np.arange(n, dtype=np.int64)[None, :]
     step = _TWO_PI / n
-    span = layout.sensor_count * layout.upsampling
+    span = layout.sensor_count * layout.directions_per_sensor
     sheets = []
     for j in range(headings):
-        start = int(round((_TWO_PI * j / headings + first_sensor_angle) / step)) - layout.upsampling // 2
+        start = int(round((_TWO_PI * j / headings + first_sensor_angle) / step)) - layout.directions_per_sensor // 2
         sheets.append((start + np.arange(span)) % n)
     return np.asarray(sheets, dtype=np.int64)
 

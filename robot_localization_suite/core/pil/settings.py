@@ -44,7 +44,9 @@ class PilSettings(Settings):
         unit="rad", ros_unit="deg", low=0.0, low_open=True, high=2.0 * math.pi, ros_name="field_of_view_deg",
         read_only=True,
     )
-    angular_upsampling: int = setting(4, "learned directions per sensor step (ours)", low=1, high=64, read_only=True)
+    angular_upsampling: int = setting(4, "learned directions per sensor step of N_s sensors over 360 deg: the learned "
+                                      "angular step is 2 pi / (N_s x this) for any field of view (ours)", low=1,
+                                      high=64, read_only=True)
     reference_headings: int = setting(8, "K: heading sheets for a limited field of view (ours)", low=1, high=360,
                                       read_only=True)
     mark_unknown_rays: bool = setting(
