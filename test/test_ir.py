@@ -107,8 +107,9 @@ def localizer(world: GridMap) -> IRLocalizer:
 
 def _share_index(target: IRLocalizer, source: IRLocalizer) -> None:
     """Give ``target`` the map and the (costly) index of ``source`` without building them again."""
-    target.grid_map, target._occupied_near = source.grid_map, source._occupied_near
+    target.grid_map = source.grid_map
     target.fixer.grid_map, target.fixer.index, target.fixer.field = source.grid_map, source.index, source.fixer.field
+    target.fixer.evidence = source.fixer.evidence
 
 
 def close(a: np.ndarray, b: np.ndarray, distance: float = 0.5, angle: float = math.radians(25.0)) -> bool:

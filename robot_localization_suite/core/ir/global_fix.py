@@ -25,6 +25,7 @@ from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
+from .evidence import MapEvidence
 from .index import FanModel, IRIndex
 from .query import live_pattern_terms, resample_scan, step1_positions, step2_poses, suppress_duplicates
 from .settings import IRSettings
@@ -48,14 +49,16 @@ class IRGlobalFixer:
         self.grid_map: GridMap | None = None
         self.index: IRIndex | None = None
         self.field: DistanceField | None = None
+        self.evidence: MapEvidence | None = None
         self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
         self.index = None
-        self.field = DistanceField(grid_map)
         s = self.settings
+        self.field = DistanceField(grid_map)
+        self.evidence = MapEvidence.from_map(grid_map, sigma=s.refine_sigma, tolerance=s.endpoint_tolerance)
         if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
             self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
 
@@ -69,6 +72,14 @@ class IRGlobalFixer:
             raise ValueError("an IR variant must share the index settings of the fixer it comes from")
         other = IRGlobalFixer(settings)
         other.grid_map, other.field, other.index = self.grid_map, self.field, self.index
+        other.evidence = self.evidence
+        if self.evidence is not None and (settings.refine_sigma, settings.endpoint_tolerance) != (
+            self.settings.refine_sigma, self.settings.endpoint_tolerance
+        ):
+            assert self.grid_map is not None
+            other.evidence = MapEvidence.from_map(
+                self.grid_map, sigma=settings.refine_sigma, tolerance=settings.endpoint_tolerance
+            )
         return other
 
     def prepare(self, scan: Scan) -> IRIndex:
@@ -86,17 +97,29 @@ class IRGlobalFixer:
         return self.index
 
     def refined_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """Mean end-point likelihood of ``poses`` after refinement, scored as the ranking scores its poses."""
+        """Scores of ``poses`` after refinement, as the ranking scores its poses (``rank_score``)."""
         if self.field is None or self.index is None:
             return None
-        s = self.settings
         live = resample_scan(scan, self.index.fan)
         hits = live.hit_mask
-        _, scores = refine_poses(
-            self.field, poses, live.angles[hits], live.ranges[hits], iterations=s.refine_iterations,
-            sigma=s.refine_sigma, max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
-        )
+        _, scores = self._refine(poses, live.angles[hits], live.ranges[hits])
         return scores
+
+    def _refine(
+        self, poses: NDArray[np.float64], angles: NDArray[np.float64], ranges: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Gauss-Newton alignment of ``poses`` to the map, and their ranking scores (docs/ir.md)."""
+        assert self.field is not None
+        s = self.settings
+        refined, likelihood = refine_poses(
+            self.field, poses, angles, ranges, iterations=s.refine_iterations, sigma=s.refine_sigma,
+            max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
+        )
+        if s.rank_score == "likelihood_ratio" and self.evidence is not None:
+            likelihood = self.evidence.likelihood_ratios(
+                refined, angles, ranges, outlier_share=s.outlier_share, neutral_unknown=s.neutral_unknown
+            )
+        return refined, likelihood
 
     def global_fix(self, scan: Scan) -> Estimate:
         """Ranked candidate poses of the laser from this scan alone (best first).
@@ -159,6 +182,7 @@ class IRGlobalFixer:
             use_idf=s.use_idf,
             no_return_terms=s.no_return_terms,
             idf_log=s.idf_log,
+            evidence=self.evidence if s.neutral_unknown else None,
         )
         timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
         if len(poses) == 0:
@@ -212,16 +236,7 @@ class IRGlobalFixer:
         count = min(s.refine_candidates, len(poses))
         if count > 0 and self.field is not None and live.hit_mask.any():
             hits = live.hit_mask
-            refined, likelihood = refine_poses(
-                self.field,
-                poses[:count],
-                live.angles[hits],
-                live.ranges[hits],
-                iterations=s.refine_iterations,
-                sigma=s.refine_sigma,
-                max_shift=s.refine_max_shift,
-                max_turn=s.refine_max_turn,
-            )
+            refined, likelihood = self._refine(poses[:count], live.angles[hits], live.ranges[hits])
             order = np.argsort(-likelihood, kind="stable")
             head, head_scores = refined[order], likelihood[order]
             keep = suppress_duplicates(head, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
@@ -232,8 +247,11 @@ class IRGlobalFixer:
                 tail_keep = suppress_duplicates(
                     tail, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates - len(head)
                 )
-                tail_scores = scores[count:][tail_keep]
-                tail_scores = tail_scores / max(float(scores.max()), 1e-12) * float(head_scores.min(initial=1.0)) * 0.5
+                tail_scores = scores[count:][tail_keep] / max(float(scores.max()), 1e-12)
+                if s.rank_score == "mean_weight":
+                    tail_scores = tail_scores * float(head_scores.min(initial=1.0)) * 0.5
+                else:  # log ratios may be negative: below the worst refined one, in step 2's order
+                    tail_scores = float(head_scores.min(initial=0.0)) - 1.0 + 0.5 * tail_scores
                 head = np.vstack([head, tail[tail_keep]])
                 head_scores = np.concatenate([head_scores, tail_scores])
             return head, head_scores

@@ -67,6 +67,13 @@ class IRSettings(Settings):
     use_idf: bool = setting(True, "step 2: idf weights (paper); false: plain counting")
     idf_log: bool = setting(False, "step 2: log(N / df) instead of the paper's N / df")
     no_return_terms: bool = setting(True, "step 2: no-return readings are hits of their own bin")
+    neutral_unknown: bool = setting(True, "end points in unknown cells or off the map score at the map's chance "
+                                    "level in step 2, the ranking and the tracker; false: as misses (paper)")
+    rank_score: str = setting("likelihood_ratio", "refined candidates ranked by their end points' mean log "
+                              "likelihood ratio against chance, or by the mean end-point weight (before 2026-12)",
+                              choices=("likelihood_ratio", "mean_weight"))
+    outlier_share: float = setting(0.05, "likelihood_ratio: share of beams the map does not explain (bounds what "
+                                   "one such beam costs)", low=0.0, low_open=True, high=1.0)
     refine_candidates: int = setting(300, "best step-2 poses aligned to the map and re-ranked; 0: paper's list",
                                      low=0, high=1_000_000)
     refine_iterations: int = setting(8, "Gauss-Newton iterations of the refinement", low=0, high=1000)
