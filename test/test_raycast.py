@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from robot_localization_suite.core.grid_map import GridMap
-from robot_localization_suite.core.raycast import RayCaster, cast_rays
+from robot_localization_suite.core.raycast import RayCaster, cast_rays, free_space_skip
 
 RESOLUTION = 0.05
 # A 10 m x 6 m map whose outermost ring of cells is wall: the free interior spans
@@ -116,3 +116,29 @@ def test_parallel_equals_serial() -> None:
 def test_bad_max_range_is_refused() -> None:
     with pytest.raises(ValueError, match="max_range.*-1"):
         cast_rays(np.zeros((2, 2), bool), 0.1, (0.0, 0.0), np.zeros(3), [0.0], -1.0)
+
+
+def test_skipping_free_space_gives_the_same_ranges() -> None:
+    rng = np.random.default_rng(5)
+    data = np.zeros((160, 220), dtype=np.int8)
+    data[rng.random(data.shape) < 0.004] = 100  # sparse posts: long open stretches to jump through
+    data[rng.random(data.shape) < 0.02] = -1
+    data[60:62, 20:180] = 100
+    grid = GridMap(data, RESOLUTION, (0.3, -1.7))
+    # Continuous poses and angles, so that no ray runs exactly through a cell corner (a tie either side may take).
+    poses = np.column_stack([rng.uniform(0.3, 11.3, 400), rng.uniform(-1.7, 6.3, 400), rng.uniform(-np.pi, np.pi, 400)])
+    angles = np.linspace(-np.pi, np.pi, 181) + 0.0123
+    for unknown_blocks in (False, True):
+        plain = RayCaster(grid, max_range=9.0, unknown_blocks=unknown_blocks).cast(poses, angles)
+        skipping = RayCaster(grid, max_range=9.0, unknown_blocks=unknown_blocks, skip_free_space=True)
+        np.testing.assert_allclose(skipping.cast(poses, angles, parallel=False), plain, rtol=0, atol=1e-4)
+        np.testing.assert_allclose(skipping.cast(poses, angles, parallel=True), plain, rtol=0, atol=1e-4)
+
+
+def test_free_space_skip_is_the_chessboard_distance_to_a_blocking_cell() -> None:
+    blocking = np.zeros((5, 7), dtype=np.uint8)
+    blocking[2, 3] = 1
+    skip = free_space_skip(blocking)
+    # Chessboard distance: the 8 neighbours are 1 away, the ring around them 2, the corners of the map 3.
+    assert skip[2, 3] == 0 and skip[1, 2] == 1 and skip[0, 1] == 2 and skip[4, 6] == 3 and skip[0, 0] == 3
+    assert free_space_skip(np.zeros((2, 3), dtype=np.uint8)).max() == 255  # nothing blocks: capped

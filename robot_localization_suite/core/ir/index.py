@@ -172,7 +172,7 @@ def cast_fans(
     chunk: int = 8192,
 ) -> NDArray[np.uint8]:
     """Quantised 360-degree fans ``(P, M)`` at ``positions`` by the shared ray caster (threads over poses)."""
-    caster = RayCaster(grid_map, max_range=fan.max_range, unknown_blocks=unknown_blocks)
+    caster = RayCaster(grid_map, max_range=fan.max_range, unknown_blocks=unknown_blocks, skip_free_space=True)
     angles = fan.angles()
     fans = np.empty((len(positions), fan.rays), dtype=np.uint8)
     poses = np.zeros((min(chunk, max(len(positions), 1)), 3))
