@@ -146,24 +146,33 @@ class GridMap:
         theta = rng.uniform(-np.pi, np.pi, size=(count, 1))
         return np.hstack([picks + jitter, theta])
 
-    def distance_field(self, *, unknown_is_obstacle: bool = False) -> NDArray[np.float32]:
+    def distance_field(self, *, unknown_is_obstacle: bool = False, cache: bool = True) -> NDArray[np.float32]:
         """Euclidean distance [m] from each cell centre to the nearest obstacle cell centre.
 
-        Cells with no obstacle on the map get the largest distance the map allows.
+        Cells with no obstacle on the map get the largest distance the map allows. With
+        ``cache`` False a field not computed before is not kept (a large map's is 4 bytes a cell).
         """
         key = f"distance_field_{unknown_is_obstacle}"
-        if key not in self._cache:
-            obstacles = self.occupied_mask | (self.unknown_mask if unknown_is_obstacle else False)
-            if not obstacles.any():
-                diagonal = float(np.hypot(self.width, self.height) * self.resolution)
-                field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
-            else:
-                # distanceTransform measures the distance to the nearest zero pixel.
-                source = np.where(obstacles, 0, 255).astype(np.uint8)
-                pixels = cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                field_m = (pixels * self.resolution).astype(np.float32)
+        if key in self._cache:
+            return self._cache[key]
+        if unknown_is_obstacle:
+            obstacles = self.data >= self.occupied_threshold
+            obstacles |= self.data < 0
+            obstacles |= self.data > self.free_threshold
+        else:
+            obstacles = self.occupied_mask
+        if not obstacles.any():
+            diagonal = float(np.hypot(self.width, self.height) * self.resolution)
+            field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
+        else:
+            # distanceTransform measures the distance to the nearest zero pixel.
+            source = np.where(obstacles, np.uint8(0), np.uint8(255))
+            del obstacles
+            field_m = np.asarray(cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE), dtype=np.float32)
+            field_m *= np.float32(self.resolution)
+        if cache:
             self._cache[key] = field_m
-        return self._cache[key]
+        return field_m
 
     def fingerprint(self) -> str:
         """A short hash of the map content, for keying on-disk caches."""
