@@ -241,7 +241,7 @@ def _hand_index(fans: np.ndarray) -> IRIndex:
         fans=fans.astype(np.uint8),
         fan=FanModel(rays=fans.shape[1], max_range=10.0, range_resolution=0.05),
         settings=IRSettings().index_settings(),
-        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.int32), 0),
+        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.uint16), 0),
         pattern_positions=sp.csr_matrix((0, count), dtype=np.float32),
         pattern_frequency=np.zeros(0, dtype=np.int64),
     )

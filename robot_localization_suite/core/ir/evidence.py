@@ -19,34 +19,36 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..grid_map import GridMap
 
-__all__ = ["CELL_FREE", "CELL_OCCUPIED", "CELL_UNKNOWN", "MapEvidence", "cell_classes"]
+__all__ = ["OCCUPIED", "UNKNOWN", "NEAR", "MapEvidence", "cell_flags"]
 
-#: Cell classes of :func:`cell_classes` (one byte a cell).
-CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN = 0, 1, 2
-# Rows of the map handled at once when the chance levels are computed (bounds the temporaries).
-_ROWS = 512
+#: Bits of :func:`cell_flags` (one byte a cell): an obstacle, an unknown cell, a cell near an obstacle.
+OCCUPIED, UNKNOWN, NEAR = 1, 2, 4
 
 
-def cell_classes(grid_map: GridMap) -> NDArray[np.uint8]:
-    """``(H, W)`` :data:`CELL_FREE`, :data:`CELL_OCCUPIED` or :data:`CELL_UNKNOWN` per cell."""
-    classes = np.full(grid_map.data.shape, CELL_UNKNOWN, dtype=np.uint8)
-    classes[grid_map.free_mask] = CELL_FREE
-    classes[grid_map.occupied_mask] = CELL_OCCUPIED
-    return classes
+def cell_flags(grid_map: GridMap, near: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """``(H, W)`` :data:`OCCUPIED`, :data:`UNKNOWN` and :data:`NEAR` (from ``near``) bits per cell."""
+    flags = np.where(grid_map.occupied_mask, np.uint8(OCCUPIED), np.uint8(0))
+    unknown = grid_map.data < 0
+    unknown |= grid_map.data > grid_map.free_threshold
+    unknown &= grid_map.data < grid_map.occupied_threshold
+    flags[unknown] |= UNKNOWN
+    del unknown
+    flags[near] |= NEAR
+    return flags
 
 
 @numba.njit(cache=True, nogil=True)
-def _cell_of(classes, x, y, ox, oy, res):
+def _cell_of(flags, x, y, ox, oy, res):
     """Cell (row, column) of a world point, or (-1, -1) off the map."""
     ix = int(math.floor((x - ox) / res))
     iy = int(math.floor((y - oy) / res))
-    if ix < 0 or iy < 0 or iy >= classes.shape[0] or ix >= classes.shape[1]:
+    if ix < 0 or iy < 0 or iy >= flags.shape[0] or ix >= flags.shape[1]:
         return -1, -1
     return iy, ix
 
 
 @numba.njit(cache=True, nogil=True)
-def _likelihood_ratios(classes, distance, ox, oy, res, poses, bx, by, inv_two_sigma2, outlier, chance, neutral, out):
+def _likelihood_ratios(flags, distance, ox, oy, res, poses, bx, by, inv_two_sigma2, outlier, chance, neutral, out):
     """Mean log likelihood ratio per pose of the end points ``(bx, by)`` (laser frame) against chance."""
     beams = bx.shape[0]
     reference = outlier + (1.0 - outlier) * chance
@@ -56,14 +58,14 @@ def _likelihood_ratios(classes, distance, ox, oy, res, poses, bx, by, inv_two_si
         for b in range(beams):
             px = poses[k, 0] + c * bx[b] - s * by[b]
             py = poses[k, 1] + s * bx[b] + c * by[b]
-            iy, ix = _cell_of(classes, px, py, ox, oy, res)
+            iy, ix = _cell_of(flags, px, py, ox, oy, res)
             if iy < 0:
                 weight = 0.0
                 known = False
             else:
                 d = distance[iy, ix]
                 weight = math.exp(-d * d * inv_two_sigma2)
-                known = classes[iy, ix] != 2
+                known = (flags[iy, ix] & 2) == 0
             ratio = math.log((outlier + (1.0 - outlier) * weight) / reference)
             if neutral and not known and ratio < 0.0:
                 ratio = 0.0  # unknown space or off the map: never evidence against the pose
@@ -72,8 +74,8 @@ def _likelihood_ratios(classes, distance, ox, oy, res, poses, bx, by, inv_two_si
 
 
 @numba.njit(cache=True, nogil=True)
-def _hit_fractions(classes, near, ox, oy, res, poses, bx, by, chance, neutral, out):
-    """Per pose: fraction of end points on ``near`` cells; unknown / off-map ones count ``chance`` if neutral."""
+def _hit_fractions(flags, ox, oy, res, poses, bx, by, chance, neutral, out):
+    """Per pose: fraction of end points on cells near an obstacle; unknown / off-map ones count ``chance`` if neutral."""
     beams = bx.shape[0]
     for k in range(poses.shape[0]):
         c, s = math.cos(poses[k, 2]), math.sin(poses[k, 2])
@@ -81,40 +83,38 @@ def _hit_fractions(classes, near, ox, oy, res, poses, bx, by, chance, neutral, o
         for b in range(beams):
             px = poses[k, 0] + c * bx[b] - s * by[b]
             py = poses[k, 1] + s * bx[b] + c * by[b]
-            iy, ix = _cell_of(classes, px, py, ox, oy, res)
-            if iy >= 0 and near[iy, ix]:
+            iy, ix = _cell_of(flags, px, py, ox, oy, res)
+            if iy >= 0 and (flags[iy, ix] & 4) != 0:
                 total += 1.0
-            elif neutral and (iy < 0 or classes[iy, ix] == 2):
+            elif neutral and (iy < 0 or (flags[iy, ix] & 2) != 0):
                 total += chance
         out[k] = total / max(beams, 1)
 
 
 @numba.njit(cache=True, nogil=True)
-def _chance_sums(classes, distance, near, inv_two_sigma2):
-    """Over known cells: count, summed end-point weight, count of ``near`` cells."""
+def _chance_sums(flags, distance, inv_two_sigma2):
+    """Over known cells: count, summed end-point weight, count of cells near an obstacle."""
     count = 0
     weight = 0.0
     hits = 0
-    for iy in range(classes.shape[0]):
-        for ix in range(classes.shape[1]):
-            if classes[iy, ix] != 2:
+    for iy in range(flags.shape[0]):
+        for ix in range(flags.shape[1]):
+            if (flags[iy, ix] & 2) == 0:
                 d = distance[iy, ix]
                 count += 1
                 weight += math.exp(-d * d * inv_two_sigma2)
-                if near[iy, ix]:
+                if (flags[iy, ix] & 4) != 0:
                     hits += 1
     return count, weight, hits
 
 
 @dataclass(frozen=True)
 class MapEvidence:
-    """The map as IR's scores read it: cell classes, distances to obstacles, chance levels.
+    """The map as IR's scores read it: cell flags, distances to obstacles, chance levels.
 
     Attributes:
-        classes: ``(H, W)`` cell classes (:func:`cell_classes`).
+        flags: ``(H, W)`` :func:`cell_flags`; :data:`NEAR`: within ``tolerance`` of an obstacle (the tracker's hits).
         distance: ``(H, W)`` distance [m] from each cell centre to the nearest occupied one.
-        near: ``(H, W)`` cells within ``tolerance`` of an occupied cell (the tracker's hits).
-        unknown: ``(H, W)`` unknown cells.
         origin: ``(x, y)`` of the lower left map corner [m].
         resolution: cell size [m].
         sigma: width of the end-point weight ``exp(-d^2 / 2 sigma^2)`` [m].
@@ -123,10 +123,8 @@ class MapEvidence:
         chance_hit: share of known cells within ``tolerance`` of an occupied cell.
     """
 
-    classes: NDArray[np.uint8]
+    flags: NDArray[np.uint8]
     distance: NDArray[np.float32]
-    near: NDArray[np.bool_]
-    unknown: NDArray[np.bool_]
     origin: tuple[float, float]
     resolution: float
     sigma: float
@@ -136,15 +134,14 @@ class MapEvidence:
     @classmethod
     def from_map(cls, grid_map: GridMap, *, sigma: float, tolerance: float) -> MapEvidence:
         """The evidence of ``grid_map`` for end-point weights of width ``sigma`` [m] and hits within ``tolerance`` [m]."""
-        classes = cell_classes(grid_map)
         distance = np.ascontiguousarray(grid_map.distance_field(), dtype=np.float32)
         near = distance <= tolerance + 1e-6 if tolerance > 0.0 else grid_map.occupied_mask
-        count, weight, hits = _chance_sums(classes, distance, near, 1.0 / (2.0 * sigma * sigma))
+        flags = cell_flags(grid_map, near)
+        del near
+        count, weight, hits = _chance_sums(flags, distance, 1.0 / (2.0 * sigma * sigma))
         return cls(
-            classes=classes,
+            flags=flags,
             distance=distance,
-            near=np.ascontiguousarray(near),
-            unknown=classes == CELL_UNKNOWN,
             origin=(float(grid_map.origin[0]), float(grid_map.origin[1])),
             resolution=float(grid_map.resolution),
             sigma=float(sigma),
@@ -156,10 +153,10 @@ class MapEvidence:
         """Whether world points ``(..., 2)`` fall in known (free or occupied) cells on the map."""
         pts = np.asarray(points, dtype=np.float64)
         cells = np.floor((pts - np.asarray(self.origin)) / self.resolution).astype(np.int64)
-        height, width = self.classes.shape
+        height, width = self.flags.shape
         inside = (cells[..., 0] >= 0) & (cells[..., 0] < width) & (cells[..., 1] >= 0) & (cells[..., 1] < height)
         out = np.zeros(inside.shape, dtype=bool)
-        out[inside] = self.classes[cells[..., 1][inside], cells[..., 0][inside]] != CELL_UNKNOWN
+        out[inside] = (self.flags[cells[..., 1][inside], cells[..., 0][inside]] & UNKNOWN) == 0
         return out
 
     def likelihood_ratios(
@@ -193,7 +190,7 @@ class MapEvidence:
         if len(poses) == 0 or ranges.size == 0:
             return out
         _likelihood_ratios(
-            self.classes, self.distance, self.origin[0], self.origin[1], self.resolution, poses,
+            self.flags, self.distance, self.origin[0], self.origin[1], self.resolution, poses,
             np.ascontiguousarray(ranges * np.cos(angles)), np.ascontiguousarray(ranges * np.sin(angles)),
             1.0 / (2.0 * self.sigma * self.sigma), float(outlier_share), self.chance_weight, bool(neutral_unknown), out,
         )
@@ -214,7 +211,7 @@ class MapEvidence:
         if len(poses) == 0 or ranges.size == 0:
             return out
         _hit_fractions(
-            self.classes, self.near, self.origin[0], self.origin[1], self.resolution, poses,
+            self.flags, self.origin[0], self.origin[1], self.resolution, poses,
             np.ascontiguousarray(ranges * np.cos(angles)), np.ascontiguousarray(ranges * np.sin(angles)),
             self.chance_hit, bool(neutral_unknown), out,
         )

@@ -48,19 +48,43 @@ class IRGlobalFixer:
         self.settings = settings
         self.grid_map: GridMap | None = None
         self.index: IRIndex | None = None
-        self.field: DistanceField | None = None
-        self.evidence: MapEvidence | None = None
+        self._field: DistanceField | None = None
+        self._evidence: MapEvidence | None = None
         self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
         self.index = None
+        self._field = self._evidence = None
         s = self.settings
-        self.field = DistanceField(grid_map)
-        self.evidence = MapEvidence.from_map(grid_map, sigma=s.refine_sigma, tolerance=s.endpoint_tolerance)
-        if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
-            self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
+        if s.scanner_configured:
+            self._build_index(s.configured_fan_model())
+
+    # The map's distance field and evidence are made on first use, after the index: a large map's
+    # precomputation then does not hold them too (4 and 9 bytes a cell).
+    @property
+    def field(self) -> DistanceField | None:
+        """The map's distance field (float32) for the refinement, made on first use."""
+        if self._field is None and self.grid_map is not None:
+            self._field = DistanceField(self.grid_map, dtype=np.float32)
+        return self._field
+
+    @field.setter
+    def field(self, value: DistanceField | None) -> None:
+        self._field = value
+
+    @property
+    def evidence(self) -> MapEvidence | None:
+        """The map as the scores read it (:mod:`.evidence`), made on first use."""
+        if self._evidence is None and self.grid_map is not None:
+            s = self.settings
+            self._evidence = MapEvidence.from_map(self.grid_map, sigma=s.refine_sigma, tolerance=s.endpoint_tolerance)
+        return self._evidence
+
+    @evidence.setter
+    def evidence(self, value: MapEvidence | None) -> None:
+        self._evidence = value
 
     def variant(self, settings: IRSettings) -> IRGlobalFixer:
         """A fixer with other query settings sharing this one's map, distance field and index.
@@ -72,14 +96,10 @@ class IRGlobalFixer:
             raise ValueError("an IR variant must share the index settings of the fixer it comes from")
         other = IRGlobalFixer(settings)
         other.grid_map, other.field, other.index = self.grid_map, self.field, self.index
-        other.evidence = self.evidence
-        if self.evidence is not None and (settings.refine_sigma, settings.endpoint_tolerance) != (
+        if (settings.refine_sigma, settings.endpoint_tolerance) == (
             self.settings.refine_sigma, self.settings.endpoint_tolerance
         ):
-            assert self.grid_map is not None
-            other.evidence = MapEvidence.from_map(
-                self.grid_map, sigma=settings.refine_sigma, tolerance=settings.endpoint_tolerance
-            )
+            other.evidence = self.evidence
         return other
 
     def prepare(self, scan: Scan) -> IRIndex:
@@ -88,11 +108,19 @@ class IRGlobalFixer:
         Raises:
             ScanError: a scan of fewer than two beams, or a geometry the precomputation cannot use.
         """
-        if self.index is None:
-            if scan.beam_count < 2:
-                raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
-            increment = float(scan.angles[1] - scan.angles[0])
-            self._build_index(self.settings.fan_model(increment, scan.range_max))
+        if scan.beam_count < 2:
+            raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
+        if self.grid_map is None:
+            raise ScanError("IR needs a map before it can prepare its index")
+        fan = self.settings.fan_model(float(scan.angles[1] - scan.angles[0]), scan.range_max)
+        if self.index is None or self.index.fan != fan:
+            if self.index is not None:
+                _LOG.warning(
+                    "IR index was built for a %d-ray fan to %.2f m, the scans need %d rays to %.2f m: building "
+                    "it again (set beam_count, field_of_view and max_range to the scanner's)",
+                    self.index.fan.rays, self.index.fan.max_range, fan.rays, fan.max_range,
+                )
+            self._build_index(fan)
         assert self.index is not None
         return self.index
 
@@ -160,7 +188,7 @@ class IRGlobalFixer:
             fallback = "no pattern: the scan is one run of hits with no delimiting no-return or range jump"
         else:
             fallback = (
-                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.settings.pattern_max_range} m"
+                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.pattern_range:g} m"
             )
         if fallback is not None:
             if s.fallback_positions <= 0:
@@ -183,6 +211,7 @@ class IRGlobalFixer:
             no_return_terms=s.no_return_terms,
             idf_log=s.idf_log,
             evidence=self.evidence if s.neutral_unknown else None,
+            exact=s.refine_candidates + s.max_candidates,
         )
         timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
         if len(poses) == 0:
@@ -225,6 +254,7 @@ class IRGlobalFixer:
             use_cache=s.use_cache,
             progress=s.progress,
             cache_budget_mb=s.cache_budget_mb,
+            memory_budget_mb=s.index_memory_mb,
         )
         _LOG.info("IR index ready: %s", self.index.describe())
 

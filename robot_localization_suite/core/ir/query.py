@@ -134,18 +134,20 @@ def _query_terms(term: NDArray[np.int64], bins: int, soft_weight: float) -> tupl
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_common_hits(indptr, indices, terms, weights, scores, touched):
+def _count_common_hits(indptr, offsets, blocks, terms, weights, scores, touched):
     """Add each query hit's weight to every pattern holding it (the hit -> pattern index); returns #touched."""
     count = 0
     for q in range(terms.shape[0]):
         t = terms[q]
         w = weights[q]
-        for e in range(indptr[t], indptr[t + 1]):
-            u = indices[e]
-            if scores[u] == 0.0:
-                touched[count] = u
-                count += 1
-            scores[u] += w
+        for b in range(blocks):
+            base = b << 16
+            for e in range(indptr[t * blocks + b], indptr[t * blocks + b + 1]):
+                u = base + np.int64(offsets[e])
+                if scores[u] == 0.0:
+                    touched[count] = u
+                    count += 1
+                scores[u] += w
     return count
 
 
@@ -215,7 +217,7 @@ def step1_positions(
     cols, vals = [], []
     for term in terms:
         query, weights = _query_terms(term, index.term_bins, soft_weight)
-        count = _count_common_hits(hits.indptr, hits.patterns, query, weights, scores, touched)
+        count = _count_common_hits(hits.indptr, hits.patterns, hits.blocks, query, weights, scores, touched)
         if count == 0:
             continue
         ids, data = _take_best(scores, touched, count, patterns_per_live_pattern, float(weights.sum()))
@@ -263,27 +265,36 @@ def _step2_held(fans, ids, rays, observed, table, tolerance, no_return_terms, no
 
 
 @numba.njit(cache=True, nogil=True)
-def _step2_scores(held, weights, neutral_values, xy, end_x, end_y, unknown, scores):
-    """Pass 2: each pose's summed weights of the hits it holds; a live end point that falls in an
-    unknown cell or off the map at that pose adds its neutral value instead (``unknown`` given:
-    ``(H, W)`` True for unknown cells; coordinates in cells from the map origin)."""
-    neutral = unknown.shape[0] > 0
-    height, width = unknown.shape[0], unknown.shape[1]
+def _step2_scores(held, weights, scores):
+    """Pass 2: each pose's summed weights of the hits it holds."""
+    for k in range(held.shape[0]):
+        row = held[k]
+        total = 0.0
+        for j in range(held.shape[1]):
+            if row[j]:
+                total += weights[j]
+        scores[k] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _step2_neutral(held, neutral_values, xy, end_x, end_y, flags, poses, scores):
+    """Pass 3, for the poses listed: a live hit a pose does not hold but whose end point falls, at that
+    pose, in an unknown cell or off the map (``flags``: :func:`~.evidence.cell_flags`) adds its
+    neutral value. ``xy`` and the end points are in cells from the map origin."""
+    height, width = flags.shape[0], flags.shape[1]
     headings, beams = end_x.shape
-    for n in range(xy.shape[0]):
+    for k in poses:
+        n, h = k // headings, k % headings
+        row = held[k]
         x, y = xy[n, 0], xy[n, 1]
-        for h in range(headings):
-            row = held[n * headings + h]
-            total = 0.0
-            for j in range(beams):
-                if row[j]:
-                    total += weights[j]
-                elif neutral and neutral_values[j] > 0.0:
-                    ix = int(math.floor(x + end_x[h, j]))
-                    iy = int(math.floor(y + end_y[h, j]))
-                    if ix < 0 or iy < 0 or ix >= width or iy >= height or unknown[iy, ix]:
-                        total += neutral_values[j]
-            scores[n * headings + h] = total
+        total = 0.0
+        for j in range(beams):
+            if not row[j] and neutral_values[j] > 0.0:
+                ix = int(math.floor(x + end_x[h, j]))
+                iy = int(math.floor(y + end_y[h, j]))
+                if ix < 0 or iy < 0 or ix >= width or iy >= height or (flags[iy, ix] & 2) != 0:
+                    total += neutral_values[j]
+        scores[k] += total
 
 
 def step2_poses(
@@ -298,6 +309,7 @@ def step2_poses(
     no_return_terms: bool,
     idf_log: bool = False,
     evidence: MapEvidence | None = None,
+    exact: int = 1_000_000_000,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Section IV-B-4: every (x, y, theta) of the positions, ranked by the summed idf of their hits.
 
@@ -310,7 +322,9 @@ def step2_poses(
     With ``evidence`` (unknown space neutral, :mod:`.evidence`), a live hit a pose does not
     hold but whose end point falls, at that pose, in an unknown cell or off the map scores
     its chance value instead of nothing: its weight times the share of poses holding it
-    (1 for the paper's idf): the map cannot tell, so it favours no pose.
+    (1 for the paper's idf): the map cannot tell, so it favours no pose. Only the best ``exact``
+    poses are sure to carry it: a pose that cannot reach them even with every hit neutral is
+    ranked by the hits it holds alone (the end-point lookups are most of step 2's time).
 
     Returns:
         poses ``(N * H, 3)`` (x, y, theta of the laser) and scores, best first.
@@ -335,26 +349,25 @@ def step2_poses(
     weights = pose_count / np.maximum(frequency, 1.0) if use_idf else np.ones(len(observed))
     if use_idf and idf_log:
         weights = np.log(weights)
+    scores = np.empty(pose_count)
+    _step2_scores(held, np.ascontiguousarray(weights, dtype=np.float64), scores)
     ranges = live.ranges[usable]
-    xy = np.ascontiguousarray(index.positions[ids], dtype=np.float64)
     if evidence is not None:
         # A hit's chance value: its weight times the share of poses holding it; none for no-returns.
-        neutral_values = np.where(np.isfinite(ranges), weights * share, 0.0)
+        neutral_values = np.ascontiguousarray(np.where(np.isfinite(ranges), weights * share, 0.0))
+        # Only poses that could still reach the best ``exact`` are looked up: the neutral part adds at most
+        # the sum of the neutral values to a pose's score.
+        exact = min(max(int(exact), 1), pose_count)
+        floor = np.partition(scores, pose_count - exact)[pose_count - exact]
+        reach = np.flatnonzero(scores + neutral_values.sum() >= floor)
         beam_angles = headings[:, None] + live.angles[usable][None, :]
-        finite = np.where(np.isfinite(ranges), ranges, 0.0)[None, :] / evidence.resolution
-        end_x = np.ascontiguousarray(finite * np.cos(beam_angles))
-        end_y = np.ascontiguousarray(finite * np.sin(beam_angles))
-        xy = (xy - np.asarray(evidence.origin)) / evidence.resolution
-        unknown = evidence.unknown
-    else:
-        neutral_values = np.zeros(len(observed))
-        end_x = end_y = np.zeros((heading_count, len(observed)))
-        unknown = np.zeros((0, 0), dtype=np.bool_)
-    scores = np.empty(pose_count)
-    _step2_scores(
-        held, np.ascontiguousarray(weights, dtype=np.float64), np.ascontiguousarray(neutral_values, dtype=np.float64),
-        np.ascontiguousarray(xy), end_x, end_y, unknown, scores,
-    )
+        cells = np.where(np.isfinite(ranges), ranges, 0.0)[None, :] / evidence.resolution
+        xy = (index.positions[ids] - np.asarray(evidence.origin)) / evidence.resolution
+        _step2_neutral(
+            held, neutral_values, np.ascontiguousarray(xy, dtype=np.float64),
+            np.ascontiguousarray(cells * np.cos(beam_angles)), np.ascontiguousarray(cells * np.sin(beam_angles)),
+            evidence.flags, reach, scores,
+        )
     grid: NDArray[np.float64] = np.empty((len(ids), heading_count, 3))
     grid[..., :2] = index.positions[ids][:, None, :]
     grid[..., 2] = np.asarray(wrap_angle(headings))[None, :]
