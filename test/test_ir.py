@@ -107,8 +107,9 @@ def localizer(world: GridMap) -> IRLocalizer:
 
 def _share_index(target: IRLocalizer, source: IRLocalizer) -> None:
     """Give ``target`` the map and the (costly) index of ``source`` without building them again."""
-    target.grid_map, target._occupied_near = source.grid_map, source._occupied_near
+    target.grid_map = source.grid_map
     target.fixer.grid_map, target.fixer.index, target.fixer.field = source.grid_map, source.index, source.fixer.field
+    target.fixer.evidence = source.fixer.evidence
 
 
 def close(a: np.ndarray, b: np.ndarray, distance: float = 0.5, angle: float = math.radians(25.0)) -> bool:
@@ -240,7 +241,7 @@ def _hand_index(fans: np.ndarray) -> IRIndex:
         fans=fans.astype(np.uint8),
         fan=FanModel(rays=fans.shape[1], max_range=10.0, range_resolution=0.05),
         settings=IRSettings().index_settings(),
-        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.int32), 0),
+        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.uint16), 0),
         pattern_positions=sp.csr_matrix((0, count), dtype=np.float32),
         pattern_frequency=np.zeros(0, dtype=np.int64),
     )

@@ -125,6 +125,23 @@ def test_bad_max_range_is_refused() -> None:
         cast_rays(np.zeros((2, 2), bool), 0.1, (0.0, 0.0), np.zeros(3), [0.0], -1.0)
 
 
+def test_skipping_free_space_gives_the_same_ranges() -> None:
+    rng = np.random.default_rng(5)
+    data = np.zeros((160, 220), dtype=np.int8)
+    data[rng.random(data.shape) < 0.004] = 100  # sparse posts: long open stretches to jump through
+    data[rng.random(data.shape) < 0.02] = -1
+    data[60:62, 20:180] = 100
+    grid = GridMap(data, RESOLUTION, (0.3, -1.7))
+    # Continuous poses and angles, so that no ray runs exactly through a cell corner (a tie either side may take).
+    poses = np.column_stack([rng.uniform(0.3, 11.3, 400), rng.uniform(-1.7, 6.3, 400), rng.uniform(-np.pi, np.pi, 400)])
+    angles = np.linspace(-np.pi, np.pi, 181) + 0.0123
+    for unknown_blocks in (False, True):
+        plain = RayCaster(grid, max_range=9.0, unknown_blocks=unknown_blocks).cast(poses, angles)
+        skipping = RayCaster(grid, max_range=9.0, unknown_blocks=unknown_blocks, skip_free_space=True)
+        np.testing.assert_allclose(skipping.cast(poses, angles, parallel=False), plain, rtol=0, atol=1e-4)
+        np.testing.assert_allclose(skipping.cast(poses, angles, parallel=True), plain, rtol=0, atol=1e-4)
+
+
 # -- rays that say how they ended ----------------------------------------------------------------
 def _cluttered_map_with_unknown(seed: int) -> GridMap:
     """Walls, scattered obstacles and unknown specks, an unknown block and an open map edge."""
