@@ -26,7 +26,6 @@ import json
 import logging
 import math
 import os
-import struct
 import time
 import zipfile
 from dataclasses import dataclass
@@ -39,7 +38,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..cache import cache_budget_bytes, default_cache_dir, mark_used, npz_member_memmap, prune_cache
 from ..errors import CacheError
 from ..grid_map import GridMap
 from ..progress import progress_disabled
@@ -615,37 +614,14 @@ def _largest(values: NDArray[np.integer], chunk: int = 1 << 22) -> int:
 
 
 def _read_npz(path: Path, *, memory_map: bool) -> dict[str, NDArray[Any]]:
-    """The arrays of an uncompressed ``.npz``; with ``memory_map``, those of at least 1 MB mapped from the file.
-
-    ``np.load`` cannot map the members of an archive; each member of an uncompressed one is a
-    plain ``.npy`` at a known offset, which ``np.memmap`` can.
-    """
+    """The arrays of an ``.npz``; with ``memory_map``, those of at least 1 MB stored uncompressed mapped from the file."""
     arrays: dict[str, NDArray[Any]] = {}
     with np.load(path, allow_pickle=False) as data:
         if not memory_map:
             return {name: data[name] for name in data.files}
-        with zipfile.ZipFile(path) as archive, open(path, "rb") as fh:
-            for info in archive.infolist():
-                name = info.filename.removesuffix(".npy")
-                if info.compress_type != zipfile.ZIP_STORED or info.file_size < _MAP_AT_LEAST:
-                    arrays[name] = data[name]
-                    continue
-                fh.seek(info.header_offset)
-                header = fh.read(30)
-                if header[:4] != b"PK\x03\x04":
-                    raise ValueError(f"member {name!r} has no local header")
-                name_length, extra_length = struct.unpack("<HH", header[26:30])
-                fh.seek(info.header_offset + 30 + name_length + extra_length)
-                version = np.lib.format.read_magic(fh)
-                if version == (1, 0):
-                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
-                elif version == (2, 0):
-                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
-                else:
-                    raise ValueError(f"member {name!r} has .npy version {version}")
-                if dtype.hasobject:
-                    raise ValueError(f"member {name!r} holds Python objects")
-                arrays[name] = np.memmap(
-                    path, dtype=dtype, mode="r", offset=fh.tell(), shape=shape, order="F" if fortran else "C"
-                )
+        with zipfile.ZipFile(path) as archive:
+            sizes = {info.filename.removesuffix(".npy"): info.file_size for info in archive.infolist()}
+        for name in data.files:
+            mapped = npz_member_memmap(path, name) if sizes.get(name, 0) >= _MAP_AT_LEAST else None
+            arrays[name] = mapped if mapped is not None else data[name]
     return arrays

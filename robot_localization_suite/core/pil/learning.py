@@ -25,7 +25,6 @@ import hashlib
 import json
 import logging
 import os
-import struct
 import tempfile
 import time
 import zipfile
@@ -37,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from ..cache import cache_budget_bytes, default_cache_dir, mark_used, prune_cache
+from ..cache import cache_budget_bytes, default_cache_dir, mark_used, npz_member_memmap, prune_cache
 from ..errors import CacheError, MapError
 from ..grid_map import GridMap
 from ..progress import progress_disabled
@@ -239,28 +238,6 @@ def _learning_key(
     return f"{grid_map.fingerprint()}_{params_hash}"
 
 
-def _member_memmap(path: Path, name: str) -> NDArray[np.generic] | None:
-    """A read-only memory map of the ``.npy`` member ``name`` of an uncompressed ``.npz``; None if it is compressed."""
-    with zipfile.ZipFile(path) as archive:
-        info = archive.getinfo(f"{name}.npy")
-    if info.compress_type != zipfile.ZIP_STORED:
-        return None
-    with open(path, "rb") as stream:
-        stream.seek(info.header_offset)
-        local = stream.read(30)
-        if len(local) != 30 or local[:4] != b"PK\x03\x04":
-            raise ValueError(f"member {name!r} has no local zip header")
-        name_length, extra_length = struct.unpack("<HH", local[26:30])
-        stream.seek(info.header_offset + 30 + name_length + extra_length)
-        version = np.lib.format.read_magic(stream)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(stream)
-        else:
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
-        offset = stream.tell()
-    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order="F" if fortran else "C")
-
-
 def _file_checksum(path: Path, start: int, size: int) -> str:
     """sha256 of ``size`` bytes of a file from ``start``, read in blocks (page cache, not this process's memory)."""
     digest = hashlib.sha256()
@@ -289,7 +266,7 @@ def _load_cache(path: Path, key: str, grid: TileGrid, angle_count: int, mmap_byt
             if stored_key != key:
                 raise CacheError(f"PIL cache {str(path)!r} holds key {stored_key!r}, expected {key!r}")
             nbytes = codes_shape[0] * codes_shape[1] if len(codes_shape) == 2 else 0
-            mapped_codes = _member_memmap(path, "codes") if nbytes > mmap_bytes else None
+            mapped_codes = npz_member_memmap(path, "codes") if nbytes > mmap_bytes else None
             mapped = mapped_codes is not None
             codes: NDArray[np.uint8] = np.asarray(mapped_codes if mapped else archive["codes"])
     except CacheError:
@@ -443,9 +420,9 @@ def learn_pseudo_images(
             _save_cache(path, learning, _checksum(codes, tile_lines, tile_columns))
             prune_cache(path.parent, cache_budget_bytes(), keep=path, log=lambda text: emit("info", text))
             if codes.nbytes > mmap_bytes:  # the learned bytes now live in the cache file: map them instead
-                mapped = _member_memmap(path, "codes")
+                mapped = npz_member_memmap(path, "codes")
                 if mapped is not None:
-                    learning.codes = mapped  # type: ignore[assignment]
+                    learning.codes = mapped
                     learning.memory_mapped = True
                     del codes
         except OSError as exc:
