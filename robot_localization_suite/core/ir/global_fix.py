@@ -237,7 +237,7 @@ class IRGlobalFixer:
     def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
         """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
         if self._coarse is None or self._coarse[0] is not index:
-            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.settings.grid_resolution).astype(np.int64)
+            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.grid_step).astype(np.int64)
             stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
             chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
             self._coarse = (index, chosen)

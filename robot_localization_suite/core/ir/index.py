@@ -60,7 +60,7 @@ __all__ = [
 _LOG = logging.getLogger(__name__)
 
 #: Bump when the cache layout or the meaning of a stored array changes.
-CACHE_VERSION = 5
+CACHE_VERSION = 6
 # Lattice points tested at once when the candidate positions are chosen (bounds the temporaries).
 _LATTICE_POINTS_AT_ONCE = 1 << 20
 # Arrays smaller than this are read into memory even when an index is memory-mapped [bytes].
@@ -121,6 +121,7 @@ class IndexSettings:
 
     Attributes:
         grid_resolution: spacing of the candidate positions [m] (paper: 5 cm).
+        max_positions: the lattice is widened until at most this many positions remain (0: no limit).
         min_clearance: positions closer than this to an obstacle or unknown cell are
             left out [m] (a robot body keeps its laser off walls; 0 keeps every free cell).
         unknown_blocks: whether unknown cells stop the precomputed rays.
@@ -138,6 +139,7 @@ class IndexSettings:
     """
 
     grid_resolution: float
+    max_positions: int
     min_clearance: float
     unknown_blocks: bool
     pattern_max_range: float
@@ -173,6 +175,21 @@ def candidate_positions(grid_map: GridMap, grid_resolution: float, min_clearance
         r, c = np.nonzero(keep)
         chunks.append(np.stack([xs[c], ys[start + r]], axis=-1))
     return np.concatenate(chunks)
+
+
+def lattice_positions(grid_map: GridMap, settings: IndexSettings) -> tuple[NDArray[np.float64], float]:
+    """:func:`candidate_positions` at ``grid_resolution``, the lattice widened while more than
+    ``max_positions`` remain (positions shrink with the square of the step); returns them and the step [m]."""
+    step = settings.grid_resolution
+    positions = candidate_positions(grid_map, step, settings.min_clearance)
+    limit = settings.max_positions
+    while limit > 0 and len(positions) > limit:
+        step *= max(math.sqrt(len(positions) / limit), 1.02)
+        positions = candidate_positions(grid_map, step, settings.min_clearance)
+    if step != settings.grid_resolution:
+        _LOG.info("IR lattice widened from %.3f m to %.3f m: %d positions (max_positions %d)",
+                  settings.grid_resolution, step, len(positions), limit)
+    return positions, step
 
 
 def cast_fans(
@@ -300,6 +317,8 @@ class IRIndex:
         build_seconds: wall time of the precomputation (0 when loaded from the cache).
         cache_path: the cache file used, if any.
         memory_mapped: the large arrays are mapped from ``cache_path`` rather than held in memory.
+        lattice_step: spacing of ``positions`` [m]: ``settings.grid_resolution`` unless
+            ``max_positions`` widened it (0 read as ``grid_resolution``).
     """
 
     positions: NDArray[np.float64]
@@ -312,6 +331,12 @@ class IRIndex:
     build_seconds: float = 0.0
     cache_path: Path | None = None
     memory_mapped: bool = False
+    lattice_step: float = 0.0
+
+    @property
+    def grid_step(self) -> float:
+        """Spacing of the candidate positions [m] (:attr:`lattice_step`)."""
+        return self.lattice_step if self.lattice_step > 0.0 else self.settings.grid_resolution
 
     # -- derived sizes ------------------------------------------------------------------
     @property
@@ -363,7 +388,7 @@ class IRIndex:
     ) -> IRIndex:
         """Cast the fans at every candidate position, cut the patterns and build the two-level index."""
         start_time = time.perf_counter()
-        positions = candidate_positions(grid_map, settings.grid_resolution, settings.min_clearance)
+        positions, step = lattice_positions(grid_map, settings)
         if len(positions) == 0:
             raise ValueError(
                 f"the map has no free position at {settings.grid_resolution} m with clearance "
@@ -380,6 +405,7 @@ class IRIndex:
             pattern_frequency=np.zeros(0, dtype=np.int64),
         )
         index._build_patterns(progress=progress)
+        index.lattice_step = step
         index.build_seconds = time.perf_counter() - start_time
         return index
 
@@ -474,6 +500,7 @@ class IRIndex:
                 pp_data=self.pattern_positions.data,
                 pp_shape=np.array(self.pattern_positions.shape, dtype=np.int64),
                 pattern_frequency=self.pattern_frequency,
+                lattice_step=np.array(self.grid_step, dtype=np.float64),
             )
         os.replace(tmp, path)
 
@@ -499,7 +526,7 @@ class IRIndex:
             )
             index = cls(
                 data["positions"], data["fans"], fan, settings, hit_patterns, pattern_positions,
-                data["pattern_frequency"], 0.0, path, memory_map,
+                data["pattern_frequency"], 0.0, path, memory_map, float(data["lattice_step"]),
             )
         except CacheError:
             raise
@@ -601,6 +628,7 @@ class IRIndex:
             "hit_links": int(self.hit_patterns.nnz),
             "megabytes": round(self.nbytes() / 1e6, 1),
             "memory_mapped": self.memory_mapped,
+            "lattice_step_m": round(self.grid_step, 4),
             "build_seconds": round(self.build_seconds, 2),
         }
 

@@ -161,7 +161,8 @@ class IRLocalizer:
         drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
         particles = candidates[drawn].copy()
         copies = np.concatenate([[False], drawn[1:] == drawn[:-1]])
-        spread = np.array([self.settings.grid_resolution, self.settings.grid_resolution, self.settings.heading_step])
+        step = self.index.grid_step if self.index is not None else self.settings.grid_resolution
+        spread = np.array([step, step, self.settings.heading_step])
         particles[copies] += self._rng.uniform(-0.5, 0.5, size=(int(copies.sum()), 3)) * spread
         particles[:, 2] = wrap_angle(particles[:, 2])
         self._start_tracking(particles, np.full(count, 1.0 / count))

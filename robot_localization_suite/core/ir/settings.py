@@ -45,6 +45,10 @@ class IRSettings(Settings):
     range_resolution: float = setting(0.10, "quantisation of stored ranges; max_range is capped at 254 times "
                                       "this (0.05 before 2026-12: 12.7 m)", unit="m", low=0.001, high=1.0,
                                       read_only=True)
+    max_positions: int = setting(300_000, "the lattice is widened (grid_resolution x k, k >= 1) until at most this "
+                                 "many candidate positions remain: bounds the index (about 1 + fan rays bytes each) "
+                                 "and its build on large maps; 0: no limit (ours)", low=0, high=1_000_000_000,
+                                 read_only=True)
     min_clearance: float = setting(0.15, "positions at least this far from obstacles and unknown cells", unit="m",
                                    low=0.0, high=10.0, read_only=True)
     unknown_blocks: bool = setting(False, "unknown cells stop the precomputed rays", read_only=True)
