@@ -52,7 +52,7 @@ class IRSettings(Settings):
     min_clearance: float = setting(0.15, "positions at least this far from obstacles and unknown cells", unit="m",
                                    low=0.0, high=10.0, read_only=True)
     unknown_blocks: bool = setting(False, "unknown cells stop the precomputed rays", read_only=True)
-    pattern_max_range: float = setting(0.0, "beyond this a reading ends a pattern (paper 5.5, its laser's range); "
+    pattern_max_range: float = setting(5.5, "beyond this a reading ends a pattern (paper 5.5, its laser's range); "
                                        "0: the precomputed range (max_range)", unit="m", low=0.0, high=1e4,
                                        read_only=True)
     pattern_range_bin: float = setting(0.10, "range bin of a first-level hit", unit="m", low=0.001, high=10.0,
