@@ -69,21 +69,27 @@ class DistanceField:
 
 
 @numba.njit(cache=True, nogil=True)
-def _sample(d, gx, gy, x, y, ox, oy, res):
-    """Bilinear distance and gradient at world point (x, y); (inf, 0, 0) off the map."""
-    h, w = d.shape
+def _bilinear(shape, x, y, ox, oy, res):
+    """Lower-left cell ``(iy, ix)`` of the four cell centres around world point (x, y) and their
+    bilinear weights ``w00, w10, w01, w11``; ``iy = -1`` when they are not all on the map."""
+    h, w = shape
     fx = (x - ox) / res - 0.5
     fy = (y - oy) / res - 0.5
     ix = int(math.floor(fx))
     iy = int(math.floor(fy))
     if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
-        return math.inf, 0.0, 0.0
+        return -1, -1, 0.0, 0.0, 0.0, 0.0
     ax = fx - ix
     ay = fy - iy
-    w00 = (1 - ax) * (1 - ay)
-    w10 = ax * (1 - ay)
-    w01 = (1 - ax) * ay
-    w11 = ax * ay
+    return iy, ix, (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample(d, gx, gy, x, y, ox, oy, res):
+    """Bilinear distance and gradient at world point (x, y); (inf, 0, 0) off the map."""
+    iy, ix, w00, w10, w01, w11 = _bilinear(d.shape, x, y, ox, oy, res)
+    if iy < 0:
+        return math.inf, 0.0, 0.0
     dist = w00 * d[iy, ix] + w10 * d[iy, ix + 1] + w01 * d[iy + 1, ix] + w11 * d[iy + 1, ix + 1]
     dx = w00 * gx[iy, ix] + w10 * gx[iy, ix + 1] + w01 * gx[iy + 1, ix] + w11 * gx[iy + 1, ix + 1]
     dy = w00 * gy[iy, ix] + w10 * gy[iy, ix + 1] + w01 * gy[iy + 1, ix] + w11 * gy[iy + 1, ix + 1]
@@ -118,19 +124,9 @@ def _gradient_at(d, iy, ix, res):
 @numba.njit(cache=True, nogil=True)
 def _sample_compact(d, x, y, ox, oy, res):
     """:func:`_sample` with the gradient taken from ``d`` where it is needed."""
-    h, w = d.shape
-    fx = (x - ox) / res - 0.5
-    fy = (y - oy) / res - 0.5
-    ix = int(math.floor(fx))
-    iy = int(math.floor(fy))
-    if ix < 0 or iy < 0 or ix + 1 >= w or iy + 1 >= h:
+    iy, ix, w00, w10, w01, w11 = _bilinear(d.shape, x, y, ox, oy, res)
+    if iy < 0:
         return math.inf, 0.0, 0.0
-    ax = fx - ix
-    ay = fy - iy
-    w00 = (1 - ax) * (1 - ay)
-    w10 = ax * (1 - ay)
-    w01 = (1 - ax) * ay
-    w11 = ax * ay
     d00, d10, d01, d11 = np.float64(d[iy, ix]), np.float64(d[iy, ix + 1]), np.float64(d[iy + 1, ix]), np.float64(d[iy + 1, ix + 1])
     dist = w00 * d00 + w10 * d10 + w01 * d01 + w11 * d11
     gx00, gy00 = _gradient_at(d, iy, ix, res)
