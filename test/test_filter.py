@@ -185,6 +185,27 @@ def test_a_map_one_cell_wide_or_high_has_a_distance_field() -> None:
         assert np.all(np.isfinite(field.grad_x)) and np.all(np.isfinite(field.grad_y))
     field = DistanceField(GridMap(row, RESOLUTION, (0.0, 0.0)))
     assert np.all(field.grad_y == 0.0) and field.grad_x[0, 10] == pytest.approx(1.0)  # grows away from the wall
+    for data in (row, np.full((1, 1), 100, dtype=np.int8)):  # the compact field looks up the same points
+        compact = DistanceField(GridMap(data, RESOLUTION, (0.0, 0.0)), compact=True)
+        for a in compact.lookup(np.array([[0.3, 0.02], [5.0, 5.0]])):
+            assert not np.any(np.isnan(a))
+
+
+def test_the_compact_distance_field_gives_the_same_numbers_in_a_sixth_of_the_memory() -> None:
+    room = _l_room()
+    full, compact = DistanceField(room), DistanceField(room, compact=True)
+    assert compact.nbytes * 6 == full.nbytes  # float32 distances only, against float64 distance and gradients
+    rng = np.random.default_rng(4)
+    points = np.column_stack([rng.uniform(-0.5, 6.5, 5000), rng.uniform(-0.5, 4.5, 5000)])  # borders and off-map too
+    for a, b in zip(full.lookup(points), compact.lookup(points), strict=True):
+        np.testing.assert_array_equal(a, b)
+    poses = np.column_stack([rng.uniform(0.5, 5.5, 30), rng.uniform(0.5, 3.5, 30), rng.uniform(-3, 3, 30)])
+    angles, ranges = np.linspace(-2.0, 2.0, 90), rng.uniform(0.5, 4.0, 90)
+    for options in ({"truncation": 0.3}, {"sigma": 0.15, "max_turn": 0.2}):
+        a = refine_poses(full, poses, angles, ranges, iterations=8, max_shift=0.3, **options)
+        b = refine_poses(compact, poses, angles, ranges, iterations=8, max_shift=0.3, **options)
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
 
 
 @pytest.mark.parametrize(

@@ -25,8 +25,10 @@ from robot_localization_suite.core.ir.index import (
     HitIndex,
     IndexSettings,
     IRIndex,
+    _invert,
     candidate_positions,
     cast_fans,
+    pattern_blocks,
 )
 from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
 from robot_localization_suite.core.ir.patterns import NO_RETURN, extract_runs, pattern_terms
@@ -108,8 +110,9 @@ def localizer(world: GridMap) -> IRLocalizer:
 
 def _share_index(target: IRLocalizer, source: IRLocalizer) -> None:
     """Give ``target`` the map and the (costly) index of ``source`` without building them again."""
-    target.grid_map, target._occupied_near = source.grid_map, source._occupied_near
+    target.grid_map = source.grid_map
     target.fixer.grid_map, target.fixer.index, target.fixer.field = source.grid_map, source.index, source.fixer.field
+    target.fixer.evidence = source.fixer.evidence
 
 
 def close(a: np.ndarray, b: np.ndarray, distance: float = 0.5, angle: float = math.radians(25.0)) -> bool:
@@ -241,7 +244,7 @@ def _hand_index(fans: np.ndarray) -> IRIndex:
         fans=fans.astype(np.uint8),
         fan=FanModel(rays=fans.shape[1], max_range=10.0, range_resolution=0.05),
         settings=IRSettings().index_settings(),
-        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.int32), 0),
+        hit_patterns=HitIndex(np.zeros(terms + 1, np.int64), np.zeros(0, np.uint16), 0),
         pattern_positions=sp.csr_matrix((0, count), dtype=np.float32),
         pattern_frequency=np.zeros(0, dtype=np.int64),
     )
@@ -273,6 +276,87 @@ def test_idf_ranks_the_right_pose_above_a_decoy_that_shares_the_common_patterns(
     assert weighted[0][0] == 0.0  # idf: rare hits outweigh common ones
     # the paper's weight: indexed poses / poses holding the hit; beam 1 is held by pose 0 only
     assert idf_scores[0] == pytest.approx(8 / 2 + 8 + 8 + 8)
+
+
+# -- large maps: memory -------------------------------------------------------------------------
+def _campus_size_map() -> GridMap:
+    """5,200 x 5,500 cells at 5 cm (the Freiburg campus map's size): streets 4 m wide every 40 m
+    between unknown blocks, walls on both sides, pillars along them."""
+    data = np.full((5200, 5500), -1, dtype=np.int8)
+    for start in range(200, 5200, 800):
+        data[start : start + 80, 100:5400] = 0
+        data[start : start + 2, 100:5400] = data[start + 78 : start + 80, 100:5400] = 100
+        data[start + 30 : start + 34, 300:5400:137] = 100
+    for start in range(200, 5500, 800):
+        data[100:5100, start : start + 80] = 0
+        data[100:5100, start : start + 2] = data[100:5100, start + 78 : start + 80] = 100
+    return GridMap(data, RES, (-30.0, -180.0))
+
+
+def test_the_blocked_hit_index_keeps_every_link_past_65536_patterns() -> None:
+    """Pattern ids beyond 16 bits: each hit's row is stored block by block as 16-bit offsets."""
+    rng = np.random.default_rng(2)
+    pattern_count, terms_per_pattern, term_count = 70_000 * 3, 3, 500
+    terms = rng.integers(0, term_count, size=pattern_count * terms_per_pattern).astype(np.uint16)
+    offsets = np.arange(pattern_count + 1, dtype=np.int64) * terms_per_pattern
+    blocks = pattern_blocks(pattern_count)
+    indptr, patterns = _invert(offsets, terms, term_count, blocks)
+    hits = HitIndex(indptr, patterns, pattern_count, blocks)
+    assert blocks == 4 and hits.patterns.dtype == np.uint16 and hits.nbytes == 2 * len(terms) + 8 * (term_count * 4 + 1)
+    expected = sp.csr_matrix(
+        (np.ones(len(terms), dtype=np.float32), (terms.astype(np.int64), np.repeat(np.arange(pattern_count), terms_per_pattern))),
+        shape=(term_count, pattern_count),
+    )
+    expected.sum_duplicates()
+    expected.data[:] = 1.0
+    got = hits.as_csr()
+    got.sum_duplicates()
+    got.data[:] = 1.0
+    assert (got != expected).nnz == 0
+    # Every link, a pattern holding the hit twice twice, ids ascending.
+    assert np.array_equal(hits.row(7), np.repeat(np.arange(pattern_count), terms_per_pattern)[terms == 7])
+
+
+def test_a_campus_size_index_stays_within_its_budget_and_is_memory_mapped_past_it(tmp_path: Path) -> None:
+    """A map of the campus's 28.6 million cells: the lattice is widened to ``max_positions``, the
+    index holds about one byte a precomputed ray, the map-sized fields are not made by the build,
+    and past ``index_memory_mb`` the index is read from its cache file, with the same answers."""
+    campus = _campus_size_map()
+    limit = 20_000
+    base = settings(max_positions=limit, grid_resolution=0.05, use_cache=True, cache_dir=str(tmp_path),
+                    step1_positions=80, refine_candidates=40)
+    scan = scan_at(campus, np.array([-10.0, -168.0, 0.3]))
+    in_memory = IRLocalizer(replace(base, index_memory_mb=1e6), campus)
+    in_memory.prepare(scan)
+    index = in_memory.index
+    assert index is not None and not index.memory_mapped
+    rays = index.fan.rays
+    # The lattice: widened from 5 cm until at most max_positions remain, all in free cells.
+    assert 0.5 * limit < len(index.positions) <= limit and index.grid_step > 0.05
+    assert campus.is_free(index.positions).all()
+    # Compact arrays: a byte a precomputed ray, 16-bit hit links, 32-bit ids and counts.
+    assert index.fans.dtype == np.uint8 and index.fans.shape == (len(index.positions), rays)
+    assert index.hit_patterns.patterns.dtype == np.uint16
+    assert index.pattern_positions.indices.dtype == np.int32 and index.pattern_positions.data.dtype == np.float32
+    assert index.pattern_frequency.dtype == np.int32
+    # All of it: the rays, the positions, and a few bytes per pattern occurrence and hit link.
+    occurrences = int(index.pattern_frequency.sum())
+    budget = len(index.positions) * (rays + 16) + 12 * occurrences + 2 * index.hit_patterns.nnz
+    budget += index.hit_patterns.indptr.nbytes + 8 * (index.pattern_positions.shape[0] + 1)
+    assert index.nbytes() <= budget
+    # At the default max_positions and 1 degree rays that is at most ~0.3 GB on any map.
+    assert IRSettings().max_positions * (360 + 16 + 12 * occurrences / len(index.positions)) < 0.5e9
+    # The map-sized distance field and score evidence are made at the first fix, not with the index.
+    assert in_memory.fixer._field is None and in_memory.fixer._evidence is None
+    before = in_memory.global_fix(scan)
+
+    mapped = IRLocalizer(replace(base, index_memory_mb=0.5), campus)
+    mapped.prepare(scan)
+    assert mapped.index is not None and mapped.index.memory_mapped and mapped.index.build_seconds == 0.0
+    assert isinstance(mapped.index.fans, np.memmap)  # arrays of 1 MB and more are mapped
+    after = mapped.global_fix(scan)
+    np.testing.assert_array_equal(before.candidates, after.candidates)
+    np.testing.assert_array_equal(before.candidate_weights, after.candidate_weights)
 
 
 # -- cache --------------------------------------------------------------------------------------
@@ -333,6 +417,7 @@ def test_index_settings_come_from_ir_settings_and_only_index_parameters_change_t
     key = IRIndex.cache_key(world, fan, base.index_settings())
     changed = {
         "grid_resolution": 0.1,
+        "max_positions": 1000,
         "min_clearance": 0.3,
         "unknown_blocks": True,
         "pattern_max_range": 4.0,

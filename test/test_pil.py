@@ -16,9 +16,16 @@ from hypothesis import strategies as st
 from robot_localization_suite.core.errors import MapError, ScanError
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
-from robot_localization_suite.core.pil.learning import TileGrid, default_cache_dir
+from robot_localization_suite.core.pil.learning import CODE_UNKNOWN, TileGrid, default_cache_dir
 from robot_localization_suite.core.pil.levels import LEVEL_FUNCTION_NAMES
 from robot_localization_suite.core.pil.localizer import PilLocalizer, PilSettings, make_level_functions
+from robot_localization_suite.core.pil.matching import (
+    LevelIndex,
+    encode_features,
+    profile_costs,
+    rank_tiles,
+    select_ranked,
+)
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 from robot_localization_suite.core.se2 import angle_difference
@@ -162,7 +169,9 @@ def test_candidate_count_shrinks_as_sigma_shrinks(room: GridMap, tmp_path: Path)
     counts = []
     for sigma in (0.3, 0.1, 0.03, 0.01):
         overrides = {f"{name}_sigma": sigma for name in LEVEL_FUNCTION_NAMES}
-        localizer = PilLocalizer(_settings(tmp_path, min_candidates=0, refine_candidates=0, **overrides))
+        # The paper: the tiles passing equation (4), one heading each (the correlation's best).
+        localizer = PilLocalizer(_settings(tmp_path, min_candidates=0, refine_candidates=0, shift_hypotheses=1, coarse_block=1,
+                                           fine_candidates=100_000, **overrides))
         localizer.set_map(room)
         estimate = localizer.global_fix(_scan(room, truth))
         counts.append(estimate.details["filter_count"])
@@ -171,6 +180,34 @@ def test_candidate_count_shrinks_as_sigma_shrinks(room: GridMap, tmp_path: Path)
         assert image is not None and int(image.sum()) == estimate.details["filter_count"]
     assert counts == sorted(counts, reverse=True)
     assert counts[-1] < counts[0] / 4
+
+
+def test_the_level_index_scores_a_few_blocks_and_finds_the_same_best_and_passing_tiles() -> None:
+    """Spatially smooth level functions (as a map's are) with missing ones: the blocks whose bounds
+    cannot hold a best-ranked or passing tile are skipped, and the selection is the full ranking's."""
+    rng = np.random.default_rng(8)
+    lines, columns = np.meshgrid(np.arange(120), np.arange(150), indexing="ij")
+    keep = rng.random(lines.shape) < 0.7  # tiles over free space only
+    lines, columns = lines[keep].astype(np.int32), columns[keep].astype(np.int32)
+    base = 0.5 + 0.3 * np.sin(lines / 9.0)[:, None, None] * np.cos(columns[:, None] / 13.0 + np.arange(6))[:, None, :]
+    values = base + 0.02 * rng.standard_normal((lines.size, 3, 6))
+    values[rng.random(values.shape) < 0.02] = np.nan
+    features = encode_features(values)
+    index = LevelIndex(features, lines, columns)
+    alphas, sigmas = np.ones(6), np.array([0.03, 0.08, 0.025, 0.02, 0.06, 0.02])
+    for live in (np.full(6, 0.5), np.array([0.3, 0.7, 0.5, 0.6, 0.45, 0.55])):
+        passes, rank = rank_tiles(features, live, alphas, sigmas, 9.0)
+        for count in (50, 600):
+            ranked = index.query(live, alphas, sigmas, 9.0, count)
+            assert ranked.tiles.size < 0.5 * lines.size and not ranked.complete
+            np.testing.assert_array_equal(ranked.rank, rank[ranked.tiles])
+            expected = select_ranked(rank, passes, count)
+            found = ranked.tiles[select_ranked(ranked.rank, ranked.passes, count)]
+            np.testing.assert_array_equal(rank[found], rank[expected])  # the same ranks, in the same order
+            assert set(found[passes[found]]) == set(expected[passes[expected]])
+    # Passing tiles come first, then by rank.
+    order = select_ranked(np.array([0.5, 3.0, 0.1, 2.0]), np.array([False, True, False, True]), 3)
+    assert order.tolist() == [3, 1, 2]
 
 
 # -- (x, y, theta) on-line -------------------------------------------------------------------------
@@ -261,7 +298,8 @@ def test_odometry_moves_the_window_centre(learned: PilLocalizer, room: GridMap) 
 def test_a_180_degree_scanner_localizes_with_heading_sheets(room: GridMap, tmp_path: Path) -> None:
     localizer = PilLocalizer(_settings(tmp_path, field_of_view=math.pi))
     localizer.set_map(room)
-    assert localizer.layout.angle_count == 114 * 4
+    # The learned angular step stays 2 pi / (57 x 4): 114 sensors around the circle, 2 directions each.
+    assert localizer.layout.angle_count == 114 * 2
     rng = np.random.default_rng(5)
     poses = [np.array([1.0, 2.0, 0.3]), np.array([3.9, 3.0, -1.9]), np.array([6.5, 1.4, 2.8]), np.array([7.0, 3.6, -0.7])]
     for truth in poses:
@@ -289,6 +327,22 @@ def test_a_scan_with_another_field_of_view_warns_and_relearns(room: GridMap, tmp
     assert "warning" not in again.details
 
 
+def test_a_half_circle_scanner_reuses_the_rays_learned_for_the_full_circle(room: GridMap, tmp_path: Path) -> None:
+    """57 sensors over 180 degrees are 114 around the circle at 2 learned directions each: the same
+    228 directions as 57 sensors over 360 degrees at 4, so only the level functions change."""
+    localizer = PilLocalizer(_settings(tmp_path))  # learned for 360 degrees in set_map
+    localizer.set_map(room)
+    learning = localizer.learning
+    truth = np.array([3.9, 3.0, -1.9])
+    # 180 beams 1 degree apart cover 180 degrees (Scan.field_of_view counts one increment past the end).
+    estimate = localizer.global_fix(_scan(room, truth, beams=180, fov=math.radians(179.0)))
+    assert "the learned rays serve for 180.0 deg" in estimate.details["warning"]
+    assert "relearned" not in estimate.details and localizer.learning is learning
+    assert estimate.details["sheets"] == 8
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.2 and dtheta < 0.1
+
+
 def test_a_shorter_range_max_relearns_with_that_range(room: GridMap, tmp_path: Path) -> None:
     localizer = PilLocalizer(_settings(tmp_path))
     localizer.set_map(room)
@@ -313,7 +367,7 @@ def test_cached_learning_reloads_identically_and_a_corrupt_cache_is_rebuilt(
     second = PilLocalizer(settings_)
     second.set_map(room)
     assert second.learning is not None and second.learning.from_cache
-    assert np.array_equal(second.learning.ranges_mm, first.learning.ranges_mm)
+    assert np.array_equal(second.learning.codes, first.learning.codes)
     assert np.array_equal(second.learning.intensities, first.learning.intensities)
     assert np.array_equal(second.learning.tile_centres, first.learning.tile_centres)
     scan = _scan(room, np.array([2.5, 2.1, 0.4]))
@@ -328,7 +382,7 @@ def test_cached_learning_reloads_identically_and_a_corrupt_cache_is_rebuilt(
         warnings = [record.getMessage() for record in caplog.records if record.levelno >= logging.WARNING]
         assert len(warnings) == 1 and str(files[0]) in warnings[0] and "relearning" in warnings[0], (how, warnings)
         assert third.learning is not None and not third.learning.from_cache
-        assert np.array_equal(third.learning.ranges_mm, first.learning.ranges_mm)
+        assert np.array_equal(third.learning.codes, first.learning.codes)
     fourth = PilLocalizer(settings_)
     fourth.set_map(room)
     assert fourth.learning is not None and fourth.learning.from_cache  # the rebuilt file is sound
@@ -446,3 +500,117 @@ def test_the_window_leaves_a_twin_place_once_the_scans_tell_them_apart(tmp_path:
     # The cabinet's corner (1.7, 0.6) is in range from x < 5.2; a metre later the truth has won for good.
     late = [error for x, error in errors.items() if x < 4.0]
     assert late and all(dxy < 0.2 and dtheta < 0.1 for dxy, dtheta in late)
+
+
+# -- large maps: memory ----------------------------------------------------------------------------
+def test_learning_a_large_map_holds_one_byte_a_ray_and_memory_maps_it_beyond_the_budget(tmp_path: Path) -> None:
+    """A 150 m x 100 m map of streets between blocks, half of it unknown: every array PIL keeps is
+    bounded by the free tiles x learned directions (one byte each) or the map cells (a few bytes each)."""
+    data = np.full((2000, 3000), -1, dtype=np.int8)
+    for y in range(0, 2000, 400):  # streets 5 m wide every 20 m, both ways, walls on their sides
+        data[y + 100 : y + 200, :] = 0
+        data[y + 100 : y + 102, :] = data[y + 198 : y + 200, :] = 100
+    for x in range(0, 3000, 400):
+        data[:, x + 100 : x + 200] = 0
+    large = GridMap(data, RESOLUTION, (0.0, 0.0))
+    settings_ = _settings(tmp_path, tile_size=0.5, sensor_count=16, max_range=6.0, cache_mmap_mb=1.0)
+    localizer = PilLocalizer(settings_)
+    localizer.set_map(large)
+    learning = localizer.learning
+    assert learning is not None and localizer._sheet_features is not None and localizer._caster is not None
+    tiles, rays = learning.tile_count, learning.angle_count
+    # Tiles over free space only: fewer than half of the 300 x 200 the map would hold.
+    _, _, centres = learning.grid.all_centres()
+    assert (learning.grid.lines, learning.grid.columns) == (200, 300)
+    assert tiles == int(large.is_free(centres).sum()) < 0.5 * 300 * 200
+    # One byte a learned ray, read from the cache file rather than held (over the 1 MB budget).
+    assert learning.codes.dtype == np.uint8 and learning.codes.shape == (tiles, rays)
+    assert learning.memory_mapped and isinstance(learning.codes, np.memmap)
+    assert learning._intensities is None  # no float copy of the rays
+    # Level functions: one byte per tile, sheet and function.
+    features = localizer._sheet_features
+    assert features.dtype == np.uint8 and features.shape == (tiles, 1, len(localizer.level_functions))
+    # Per map cell: 2 bytes to cast rays, 4 for the distance field (no float64 gradients).
+    cells = large.data.size
+    assert localizer._caster.nbytes == 2 * cells
+    assert localizer._distance_field is not None and localizer._distance_field.nbytes == 4 * cells
+    # A scan still matches from the memory-mapped learning: a place about as good as the truth (the
+    # streets repeat, so which one is not the point here; rays into the unknown blocks cost
+    # unknown_cost at the truth too).
+    truth = np.array([67.75, 47.25, 0.7])  # a tile centre
+    scan = _scan(large, truth, range_max=6.0)
+    estimate = localizer.global_fix(scan)
+    profile = localizer._live_profile(scan)
+    at_truth = profile_costs(localizer._pose_codes(truth[None, :], profile), localizer._table(profile), profile.valid)
+    assert estimate.details["best_score"] <= at_truth[0] + 0.05  # a heading between learned directions
+
+
+# -- a partial, outdated map -----------------------------------------------------------------------
+def _room_open_to_unknown() -> GridMap:
+    """The asymmetric room whose east part (x > 6 m, walls included) was never mapped: unknown cells."""
+    data = _asymmetric_room().data.copy()
+    data[:, 120:] = -1
+    return GridMap(data, RESOLUTION, (0.0, 0.0))
+
+
+def test_a_learned_ray_into_unknown_space_is_no_evidence(room: GridMap, tmp_path: Path) -> None:
+    partial = _room_open_to_unknown()
+    truth = np.array([3.0, 3.5, 0.0])  # facing east, into the part the map does not know
+    scan = _scan(room, truth)  # the real room: the partition at x = 5 m, then the east wall
+    localizer = PilLocalizer(_settings(tmp_path, refine_candidates=0))
+    localizer.set_map(partial)
+    learning = localizer.learning
+    assert learning is not None
+    index = learning.tile_index_image()[tuple(learning.grid.world_to_tile(truth[:2]))]
+    # East (direction 0) from x = 3.1, y = 3.5: over the partition's top, free up to the unknown part
+    # at x = 6 m, nothing mapped beyond: unknown. West: the box at x = 2 m, 1.1 m away, is a range.
+    assert learning.codes[index, 0] == CODE_UNKNOWN
+    assert learning.codes[index, learning.angle_count // 2] != CODE_UNKNOWN
+    # The score at the truth does not depend on what the live scan reads along the unknown rays:
+    # the same scan with every eastward beam reading 0.5 m, or nothing, scores the same there.
+    localizer.prepare(scan)
+    profile = localizer._live_profile(scan)
+    pose_codes = localizer._pose_codes(truth[None, :], profile)[0]
+    unknown = pose_codes == CODE_UNKNOWN
+    # About -15 to +25 degrees (the partition below, the north wall above): 4 to 7 sensors of 57.
+    assert 4 <= unknown.sum() <= 8 and np.all(np.cos(profile.sensor_angles[unknown]) > 0.8)
+    costs = []
+    for reading in (0.5, np.inf, None):
+        ranges = scan.ranges.copy()
+        if reading is not None:
+            beams = np.abs(angle_difference(scan.angles, 0.0)) < 0.5 * math.pi - 0.35
+            ranges[beams] = reading
+        live = localizer._live_profile(Scan(0.0, scan.angles, ranges, scan.range_min, scan.range_max))
+        table = localizer._table(live)
+        per_sensor = table[np.arange(table.shape[0]), pose_codes]
+        assert np.all(per_sensor[unknown] == localizer.settings.unknown_cost)
+        costs.append(float(per_sensor[unknown].sum()))
+    assert costs[0] == costs[1] == costs[2]
+    # Global localization on the partial map still finds the truth.
+    estimate = localizer.global_fix(scan)
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.25 and dtheta < 0.1
+    # The paper's learning (rays read what they find) takes the unknown part as open space.
+    legacy = PilLocalizer(_settings(tmp_path, refine_candidates=0, mark_unknown_rays=False))
+    legacy.set_map(partial)
+    assert legacy.learning is not None and not np.any(legacy.learning.codes == CODE_UNKNOWN)
+
+
+def test_a_scan_with_an_unmapped_box_in_front_still_localizes(room: GridMap, tmp_path: Path) -> None:
+    """A 1 m x 0.6 m box 0.8 m in front of the robot, absent from the map: it hides a fifth of the
+    scan, whose readings are shorter than the learned ranges, not longer."""
+    truth = np.array([2.5, 2.1, 0.4])
+    cluttered = room.data.copy()
+    centre = truth[:2] + 1.1 * np.array([math.cos(truth[2]), math.sin(truth[2])])
+    ix, iy = room.world_to_cell(centre)
+    cluttered[iy - 10 : iy + 10, ix - 6 : ix + 6] = 100
+    scan = _scan(GridMap(cluttered, RESOLUTION, (0.0, 0.0)), truth)
+    original = _scan(room, truth)
+    shorter = scan.ranges < original.ranges - 0.3
+    assert 0.1 < shorter.mean() < 0.3
+    localizer = PilLocalizer(_settings(tmp_path))
+    localizer.set_map(room)
+    estimate = localizer.global_fix(scan)
+    dxy, dtheta = _pose_error(estimate.pose, truth)
+    assert dxy < 0.2 and dtheta < 0.1
+    assert estimate.status is not LocalizerStatus.LOST

@@ -44,7 +44,7 @@ def test_degree_parameters_are_converted_and_bad_values_refused(tmp_path: Path) 
     localizer = _pil(field_of_view_deg=180, ambiguity_angle_deg=30.0, window_size=0, cache_dir=str(tmp_path))
     assert localizer.settings.field_of_view == pytest.approx(math.pi)
     assert localizer.settings.ambiguity_angle == pytest.approx(math.radians(30.0))
-    assert localizer.layout.angle_count == 114 * 4
+    assert localizer.layout.angle_count == 114 * 2
     with pytest.raises(ValueError, match="beam_mapping"):
         _pil(beam_mapping="average")
 

@@ -18,9 +18,14 @@ from __future__ import annotations
 import logging
 import math
 import os
+import struct
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
 
 from .errors import CacheError
 
@@ -31,6 +36,7 @@ __all__ = [
     "default_cache_dir",
     "load_cached",
     "mark_used",
+    "npz_member_memmap",
     "prune_cache",
 ]
 
@@ -166,3 +172,36 @@ def prune_cache(
             directory, total / _BYTES_PER_MB, budget_bytes / _BYTES_PER_MB, keep,
         )
     return removed
+
+
+def npz_member_memmap(path: Path, name: str) -> NDArray[Any] | None:
+    """A read-only memory map of the ``.npy`` member ``name`` of an ``.npz``; None if it is compressed.
+
+    ``np.load`` cannot map the members of an archive; each member of an uncompressed one is a
+    plain ``.npy`` at a known offset (after its zip local header), which ``np.memmap`` can.
+
+    Raises:
+        KeyError: no such member. ValueError: a member that is not a plain ``.npy``.
+    """
+    with zipfile.ZipFile(path) as archive:
+        info = archive.getinfo(f"{name}.npy")
+    if info.compress_type != zipfile.ZIP_STORED:
+        return None
+    with open(path, "rb") as stream:
+        stream.seek(info.header_offset)
+        local = stream.read(30)
+        if len(local) != 30 or local[:4] != b"PK\x03\x04":
+            raise ValueError(f"member {name!r} has no local zip header")
+        name_length, extra_length = struct.unpack("<HH", local[26:30])
+        stream.seek(info.header_offset + 30 + name_length + extra_length)
+        version = np.lib.format.read_magic(stream)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(stream)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
+        else:
+            raise ValueError(f"member {name!r} has .npy version {version}")
+        if dtype.hasobject:
+            raise ValueError(f"member {name!r} holds Python objects")
+        offset = stream.tell()
+    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order="F" if fortran else "C")

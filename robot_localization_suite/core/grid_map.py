@@ -177,24 +177,33 @@ class GridMap:
         theta = rng.uniform(-np.pi, np.pi, size=(count, 1))
         return np.hstack([picks + jitter, theta])
 
-    def distance_field(self, *, unknown_is_obstacle: bool = False) -> NDArray[np.float32]:
+    def distance_field(self, *, unknown_is_obstacle: bool = False, cache: bool = True) -> NDArray[np.float32]:
         """Euclidean distance [m] from each cell centre to the nearest obstacle cell centre.
 
-        Cells with no obstacle on the map get the largest distance the map allows.
+        Cells with no obstacle on the map get the largest distance the map allows. With
+        ``cache`` False a field not computed before is not kept (a large map's is 4 bytes a cell).
         """
         key = f"distance_field_{unknown_is_obstacle}"
-        if key not in self._cache:
-            obstacles = self.occupied_mask | (self.unknown_mask if unknown_is_obstacle else False)
-            if not obstacles.any():
-                diagonal = float(np.hypot(self.width, self.height) * self.resolution)
-                field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
-            else:
-                # distanceTransform measures the distance to the nearest zero pixel.
-                source = np.where(obstacles, 0, 255).astype(np.uint8)
-                pixels = cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-                field_m = (pixels * self.resolution).astype(np.float32)
+        if key in self._cache:
+            return self._cache[key]
+        if unknown_is_obstacle:
+            obstacles = self.data >= self.occupied_threshold
+            obstacles |= self.data < 0
+            obstacles |= self.data > self.free_threshold
+        else:
+            obstacles = self.occupied_mask
+        if not obstacles.any():
+            diagonal = float(np.hypot(self.width, self.height) * self.resolution)
+            field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
+        else:
+            # distanceTransform measures the distance to the nearest zero pixel.
+            source = np.where(obstacles, np.uint8(0), np.uint8(255))
+            del obstacles
+            field_m = np.asarray(cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE), dtype=np.float32)
+            field_m *= np.float32(self.resolution)
+        if cache:
             self._cache[key] = field_m
-        return self._cache[key]
+        return field_m
 
     def fingerprint(self) -> str:
         """A short hash of the map content, for keying on-disk caches.
@@ -292,6 +301,23 @@ def _number(meta: dict[str, Any], name: str, path: Path, default: float | None =
     return number
 
 
+def _occupancy_values(
+    pixels: NDArray[np.float64], mode: str, negate: bool, occupied_thresh: float, free_thresh: float
+) -> NDArray[np.float64]:
+    """map_server's occupancy (-1 unknown, 0..100) of grey levels, as floats."""
+    if mode == "raw":
+        return np.where(pixels <= 100, pixels, -1.0)
+    occ = pixels / 255.0 if negate else (255.0 - pixels) / 255.0
+    data = np.full(pixels.shape, -1.0)
+    data[occ > occupied_thresh] = 100
+    data[occ < free_thresh] = 0
+    if mode == "scale":
+        between = (occ >= free_thresh) & (occ <= occupied_thresh)
+        span = max(occupied_thresh - free_thresh, 1e-9)
+        data[between] = np.rint(99.0 * (occ[between] - free_thresh) / span)
+    return data
+
+
 def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
     """Load a nav2 map_server map (YAML + PGM/PNG image).
 
@@ -343,21 +369,17 @@ def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
         raise MapError(f"map image {str(image_path)!r} is corrupt or not an image")
     if pixels.ndim == 3:  # colour (and alpha) images: map_server averages the colour channels
         pixels = pixels[..., :3].mean(axis=2)
-    pixels = np.flipud(pixels.astype(np.float64))
-
-    if mode == "raw":
-        data = np.where(pixels <= 100, pixels, -1)
+    if pixels.dtype in (np.uint8, np.uint16):
+        # One occupancy value per grey level: a lookup table instead of float images (a 5,000 x 5,000
+        # map would otherwise hold several 200 MB temporaries).
+        lut = _occupancy_values(np.arange(int(pixels.max()) + 1, dtype=np.float64), mode, bool(negate),
+                                occupied_thresh, free_thresh).astype(np.int8)
+        data = lut[np.flipud(pixels)]
     else:
-        occ = pixels / 255.0 if negate else (255.0 - pixels) / 255.0
-        data = np.full(pixels.shape, -1.0)
-        data[occ > occupied_thresh] = 100
-        data[occ < free_thresh] = 0
-        if mode == "scale":
-            between = (occ >= free_thresh) & (occ <= occupied_thresh)
-            span = max(occupied_thresh - free_thresh, 1e-9)
-            data[between] = np.rint(99.0 * (occ[between] - free_thresh) / span)
+        data = _occupancy_values(np.flipud(pixels.astype(np.float64)), mode, bool(negate), occupied_thresh,
+                                 free_thresh)
     return GridMap(
-        data.astype(np.int8),
+        data.astype(np.int8, copy=False),
         resolution,
         (origin_x, origin_y),
         # In scale mode the in-between values are graded, not obstacles nor free space.

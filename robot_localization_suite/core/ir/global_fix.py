@@ -25,6 +25,7 @@ from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
+from .evidence import MapEvidence
 from .index import FanModel, IRIndex
 from .query import live_pattern_terms, resample_scan, step1_positions, step2_poses, suppress_duplicates
 from .settings import IRSettings
@@ -47,17 +48,43 @@ class IRGlobalFixer:
         self.settings = settings
         self.grid_map: GridMap | None = None
         self.index: IRIndex | None = None
-        self.field: DistanceField | None = None
+        self._field: DistanceField | None = None
+        self._evidence: MapEvidence | None = None
         self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
         self.index = None
-        self.field = DistanceField(grid_map)
+        self._field = self._evidence = None
         s = self.settings
-        if s.beam_count > 0 and s.field_of_view > 0.0 and s.max_range > 0.0:
-            self._build_index(s.fan_model(s.field_of_view / s.beam_count, s.max_range))
+        if s.scanner_configured:
+            self._build_index(s.configured_fan_model())
+
+    # The map's distance field and evidence are made on first use, after the index: a large map's
+    # precomputation then does not hold them too (4 and 9 bytes a cell).
+    @property
+    def field(self) -> DistanceField | None:
+        """The map's distance field for the refinement (compact: the float32 distances only), made on first use."""
+        if self._field is None and self.grid_map is not None:
+            self._field = DistanceField(self.grid_map, compact=True)
+        return self._field
+
+    @field.setter
+    def field(self, value: DistanceField | None) -> None:
+        self._field = value
+
+    @property
+    def evidence(self) -> MapEvidence | None:
+        """The map as the scores read it (:mod:`.evidence`), made on first use."""
+        if self._evidence is None and self.grid_map is not None:
+            s = self.settings
+            self._evidence = MapEvidence.from_map(self.grid_map, sigma=s.refine_sigma, tolerance=s.endpoint_tolerance)
+        return self._evidence
+
+    @evidence.setter
+    def evidence(self, value: MapEvidence | None) -> None:
+        self._evidence = value
 
     def variant(self, settings: IRSettings) -> IRGlobalFixer:
         """A fixer with other query settings sharing this one's map, distance field and index.
@@ -69,6 +96,10 @@ class IRGlobalFixer:
             raise ValueError("an IR variant must share the index settings of the fixer it comes from")
         other = IRGlobalFixer(settings)
         other.grid_map, other.field, other.index = self.grid_map, self.field, self.index
+        if (settings.refine_sigma, settings.endpoint_tolerance) == (
+            self.settings.refine_sigma, self.settings.endpoint_tolerance
+        ):
+            other.evidence = self.evidence
         return other
 
     def prepare(self, scan: Scan) -> IRIndex:
@@ -77,26 +108,46 @@ class IRGlobalFixer:
         Raises:
             ScanError: a scan of fewer than two beams, or a geometry the precomputation cannot use.
         """
-        if self.index is None:
-            if scan.beam_count < 2:
-                raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
-            increment = float(scan.angles[1] - scan.angles[0])
-            self._build_index(self.settings.fan_model(increment, scan.range_max))
+        if scan.beam_count < 2:
+            raise ScanError(f"IR needs scans of at least 2 beams to learn the scanner, got {scan.beam_count}")
+        if self.grid_map is None:
+            raise ScanError("IR needs a map before it can prepare its index")
+        fan = self.settings.fan_model(float(scan.angles[1] - scan.angles[0]), scan.range_max)
+        if self.index is None or self.index.fan != fan:
+            if self.index is not None:
+                _LOG.warning(
+                    "IR index was built for a %d-ray fan to %.2f m, the scans need %d rays to %.2f m: building "
+                    "it again (set beam_count, field_of_view and max_range to the scanner's)",
+                    self.index.fan.rays, self.index.fan.max_range, fan.rays, fan.max_range,
+                )
+            self._build_index(fan)
         assert self.index is not None
         return self.index
 
     def refined_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """Mean end-point likelihood of ``poses`` after refinement, scored as the ranking scores its poses."""
+        """Scores of ``poses`` after refinement, as the ranking scores its poses (``rank_score``)."""
         if self.field is None or self.index is None:
             return None
-        s = self.settings
         live = resample_scan(scan, self.index.fan)
         hits = live.hit_mask
-        _, scores = refine_poses(
-            self.field, poses, live.angles[hits], live.ranges[hits], iterations=s.refine_iterations,
-            sigma=s.refine_sigma, max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
-        )
+        _, scores = self._refine(poses, live.angles[hits], live.ranges[hits])
         return scores
+
+    def _refine(
+        self, poses: NDArray[np.float64], angles: NDArray[np.float64], ranges: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Gauss-Newton alignment of ``poses`` to the map, and their ranking scores (docs/ir.md)."""
+        assert self.field is not None
+        s = self.settings
+        refined, likelihood = refine_poses(
+            self.field, poses, angles, ranges, iterations=s.refine_iterations, sigma=s.refine_sigma,
+            max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
+        )
+        if s.rank_score == "likelihood_ratio" and self.evidence is not None:
+            likelihood = self.evidence.likelihood_ratios(
+                refined, angles, ranges, outlier_share=s.outlier_share, neutral_unknown=s.neutral_unknown
+            )
+        return refined, likelihood
 
     def global_fix(self, scan: Scan) -> Estimate:
         """Ranked candidate poses of the laser from this scan alone (best first).
@@ -137,7 +188,7 @@ class IRGlobalFixer:
             fallback = "no pattern: the scan is one run of hits with no delimiting no-return or range jump"
         else:
             fallback = (
-                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.settings.pattern_max_range} m"
+                f"no pattern: no run of at least {s.min_pattern_beams} hits within {index.pattern_range:g} m"
             )
         if fallback is not None:
             if s.fallback_positions <= 0:
@@ -159,6 +210,8 @@ class IRGlobalFixer:
             use_idf=s.use_idf,
             no_return_terms=s.no_return_terms,
             idf_log=s.idf_log,
+            evidence=self.evidence if s.neutral_unknown else None,
+            exact=s.refine_candidates + s.max_candidates,
         )
         timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
         if len(poses) == 0:
@@ -184,7 +237,7 @@ class IRGlobalFixer:
     def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
         """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
         if self._coarse is None or self._coarse[0] is not index:
-            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.settings.grid_resolution).astype(np.int64)
+            lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.grid_step).astype(np.int64)
             stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
             chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
             self._coarse = (index, chosen)
@@ -201,6 +254,7 @@ class IRGlobalFixer:
             use_cache=s.use_cache,
             progress=s.progress,
             cache_budget_mb=s.cache_budget_mb,
+            memory_budget_mb=s.index_memory_mb,
         )
         _LOG.info("IR index ready: %s", self.index.describe())
 
@@ -212,16 +266,7 @@ class IRGlobalFixer:
         count = min(s.refine_candidates, len(poses))
         if count > 0 and self.field is not None and live.hit_mask.any():
             hits = live.hit_mask
-            refined, likelihood = refine_poses(
-                self.field,
-                poses[:count],
-                live.angles[hits],
-                live.ranges[hits],
-                iterations=s.refine_iterations,
-                sigma=s.refine_sigma,
-                max_shift=s.refine_max_shift,
-                max_turn=s.refine_max_turn,
-            )
+            refined, likelihood = self._refine(poses[:count], live.angles[hits], live.ranges[hits])
             order = np.argsort(-likelihood, kind="stable")
             head, head_scores = refined[order], likelihood[order]
             keep = suppress_duplicates(head, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
@@ -232,8 +277,11 @@ class IRGlobalFixer:
                 tail_keep = suppress_duplicates(
                     tail, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates - len(head)
                 )
-                tail_scores = scores[count:][tail_keep]
-                tail_scores = tail_scores / max(float(scores.max()), 1e-12) * float(head_scores.min(initial=1.0)) * 0.5
+                tail_scores = scores[count:][tail_keep] / max(float(scores.max()), 1e-12)
+                if s.rank_score == "mean_weight":
+                    tail_scores = tail_scores * float(head_scores.min(initial=1.0)) * 0.5
+                else:  # log ratios may be negative: below the worst refined one, in step 2's order
+                    tail_scores = float(head_scores.min(initial=0.0)) - 1.0 + 0.5 * tail_scores
                 head = np.vstack([head, tail[tail_keep]])
                 head_scores = np.concatenate([head_scores, tail_scores])
             return head, head_scores

@@ -46,7 +46,6 @@ class IRLocalizer:
         self.settings = settings or IRSettings()
         self.grid_map: GridMap | None = None
         self.fixer = IRGlobalFixer(self.settings)
-        self._occupied_near: NDArray[np.bool_] | None = None
         self._rng = np.random.default_rng(self.settings.seed)
         self._motion = OdometryMotionModel(
             alpha1=self.settings.alpha1,
@@ -80,11 +79,6 @@ class IRLocalizer:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
         self.fixer.set_map(grid_map)
-        tolerance = self.settings.endpoint_tolerance
-        if tolerance > 0.0:
-            self._occupied_near = grid_map.distance_field() <= tolerance + 1e-6
-        else:
-            self._occupied_near = grid_map.occupied_mask
         self._reset_tracking()
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
@@ -167,7 +161,8 @@ class IRLocalizer:
         drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
         particles = candidates[drawn].copy()
         copies = np.concatenate([[False], drawn[1:] == drawn[:-1]])
-        spread = np.array([self.settings.grid_resolution, self.settings.grid_resolution, self.settings.heading_step])
+        step = self.index.grid_step if self.index is not None else self.settings.grid_resolution
+        spread = np.array([step, step, self.settings.heading_step])
         particles[copies] += self._rng.uniform(-0.5, 0.5, size=(int(copies.sum()), 3)) * spread
         particles[:, 2] = wrap_angle(particles[:, 2])
         self._start_tracking(particles, np.full(count, 1.0 / count))
@@ -210,22 +205,16 @@ class IRLocalizer:
         return compose(poses, relative(reference, odom))
 
     def endpoint_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Section IV-C-2: fraction of the scan's hit end-points (at most ``max_beams``) on occupied cells."""
-        assert self.grid_map is not None and self._occupied_near is not None
+        """Section IV-C-2: fraction of the scan's hit end-points (at most ``max_beams``) on occupied cells.
+
+        Within ``endpoint_tolerance`` of one; with ``neutral_unknown`` an end point in an unknown cell or
+        off the map counts the map's chance level instead of a miss (:mod:`.evidence`).
+        """
+        evidence = self.fixer.evidence
+        assert self.grid_map is not None and evidence is not None
         beams = scan.subsample(self.settings.max_beams)
         angles, ranges = beams.hits()
-        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-        if len(ranges) == 0:
-            return np.zeros(len(poses))
-        heading = poses[:, 2:3] + angles[None, :]
-        points = np.stack(
-            [poses[:, 0:1] + ranges * np.cos(heading), poses[:, 1:2] + ranges * np.sin(heading)], axis=-1
-        )
-        cells = self.grid_map.world_to_cell(points)
-        inside = self.grid_map.in_bounds(cells)
-        hit = np.zeros(inside.shape, dtype=bool)
-        hit[inside] = self._occupied_near[cells[..., 1][inside], cells[..., 0][inside]]
-        return hit.mean(axis=1)
+        return evidence.hit_fractions(poses, angles, ranges, neutral_unknown=self.settings.neutral_unknown)
 
     def _update(self, scan: Scan) -> Estimate | None:
         """Predict, weight, resample. None when the filter declares itself lost."""

@@ -2,7 +2,7 @@
 
 Aycard & Brouard, sections IV-B-3 and IV-B-4; the choices are written in
 docs/ir.md. Everything here is vectorised (scipy.sparse products for step 1,
-one ``(positions x headings x beams)`` comparison for step 2, batched
+one compiled ``(positions x headings x beams)`` pass for step 2, batched
 Gauss-Newton for the refinement).
 """
 
@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from ..scan import Scan
 from ..se2 import wrap_angle
+from .evidence import MapEvidence
 from .index import FanModel, IRIndex
 from .patterns import NO_RETURN, extract_runs, pattern_terms
 from .settings import MAX_HIT_CODE
@@ -133,18 +134,20 @@ def _query_terms(term: NDArray[np.int64], bins: int, soft_weight: float) -> tupl
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_common_hits(indptr, indices, terms, weights, scores, touched):
+def _count_common_hits(indptr, offsets, blocks, terms, weights, scores, touched):
     """Add each query hit's weight to every pattern holding it (the hit -> pattern index); returns #touched."""
     count = 0
     for q in range(terms.shape[0]):
         t = terms[q]
         w = weights[q]
-        for e in range(indptr[t], indptr[t + 1]):
-            u = indices[e]
-            if scores[u] == 0.0:
-                touched[count] = u
-                count += 1
-            scores[u] += w
+        for b in range(blocks):
+            base = b << 16
+            for e in range(indptr[t * blocks + b], indptr[t * blocks + b + 1]):
+                u = base + np.int64(offsets[e])
+                if scores[u] == 0.0:
+                    touched[count] = u
+                    count += 1
+                scores[u] += w
     return count
 
 
@@ -214,7 +217,7 @@ def step1_positions(
     cols, vals = [], []
     for term in terms:
         query, weights = _query_terms(term, index.term_bins, soft_weight)
-        count = _count_common_hits(hits.indptr, hits.patterns, query, weights, scores, touched)
+        count = _count_common_hits(hits.indptr, hits.patterns, hits.blocks, query, weights, scores, touched)
         if count == 0:
             continue
         ids, data = _take_best(scores, touched, count, patterns_per_live_pattern, float(weights.sum()))
@@ -236,14 +239,62 @@ def step1_positions(
     return candidates[order], position_scores[candidates[order]]
 
 
-# Positions compared at once in step 2 (300 positions x 72 headings x 360 beams is 7.8 M comparisons).
-_STEP2_BLOCK = 400
-
-
 def _bin_table(divisor: int) -> NDArray[np.int16]:
     table = (np.arange(256) // divisor).astype(np.int16)
     table[NO_RETURN] = 10_000  # never within a tolerance of a hit's bin
     return table
+
+
+@numba.njit(cache=True, nogil=True)
+def _step2_held(fans, ids, rays, observed, table, tolerance, no_return_terms, no_return_bin, held, frequency):
+    """Pass 1: whether each pose (position x heading) holds each live hit (``held``), and how many poses do."""
+    headings, beams = rays.shape
+    for n in range(ids.shape[0]):
+        fan = fans[ids[n]]
+        for h in range(headings):
+            row = held[n * headings + h]
+            for j in range(beams):
+                expected = table[fan[rays[h, j]]]
+                d = expected - observed[j]
+                hit = -tolerance <= d <= tolerance or (
+                    no_return_terms and expected == no_return_bin and observed[j] == no_return_bin
+                )
+                row[j] = hit
+                if hit:
+                    frequency[j] += 1.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _step2_scores(held, weights, scores):
+    """Pass 2: each pose's summed weights of the hits it holds."""
+    for k in range(held.shape[0]):
+        row = held[k]
+        total = 0.0
+        for j in range(held.shape[1]):
+            if row[j]:
+                total += weights[j]
+        scores[k] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _step2_neutral(held, neutral_values, xy, end_x, end_y, flags, poses, scores):
+    """Pass 3, for the poses listed: a live hit a pose does not hold but whose end point falls, at that
+    pose, in an unknown cell or off the map (``flags``: :func:`~.evidence.cell_flags`) adds its
+    neutral value. ``xy`` and the end points are in cells from the map origin."""
+    height, width = flags.shape[0], flags.shape[1]
+    headings, beams = end_x.shape
+    for k in poses:
+        n, h = k // headings, k % headings
+        row = held[k]
+        x, y = xy[n, 0], xy[n, 1]
+        total = 0.0
+        for j in range(beams):
+            if not row[j] and neutral_values[j] > 0.0:
+                ix = int(math.floor(x + end_x[h, j]))
+                iy = int(math.floor(y + end_y[h, j]))
+                if ix < 0 or iy < 0 or ix >= width or iy >= height or (flags[iy, ix] & 2) != 0:
+                    total += neutral_values[j]
+        scores[k] += total
 
 
 def step2_poses(
@@ -257,6 +308,8 @@ def step2_poses(
     use_idf: bool,
     no_return_terms: bool,
     idf_log: bool = False,
+    evidence: MapEvidence | None = None,
+    exact: int = 1_000_000_000,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Section IV-B-4: every (x, y, theta) of the positions, ranked by the summed idf of their hits.
 
@@ -265,6 +318,13 @@ def step2_poses(
     the number of indexed poses divided by the number holding it (the paper's
     idf; its logarithm, the usual idf of information retrieval, with
     ``idf_log``), or 1 without idf (plain counting).
+
+    With ``evidence`` (unknown space neutral, :mod:`.evidence`), a live hit a pose does not
+    hold but whose end point falls, at that pose, in an unknown cell or off the map scores
+    its chance value instead of nothing: its weight times the share of poses holding it
+    (1 for the paper's idf): the map cannot tell, so it favours no pose. Only the best ``exact``
+    poses are sure to carry it: a pose that cannot reach them even with every hit neutral is
+    ranked by the hits it holds alone (the end-point lookups are most of step 2's time).
 
     Returns:
         poses ``(N * H, 3)`` (x, y, theta of the laser) and scores, best first.
@@ -275,43 +335,41 @@ def step2_poses(
     fan = index.fan
     offsets = live.offsets[usable]
     headings = np.arange(heading_count) * (2.0 * math.pi / heading_count)
-    rays = np.rint(headings[:, None] / fan.ray_step + offsets[None, :]).astype(np.int64) % fan.rays
+    rays = np.ascontiguousarray(np.rint(headings[:, None] / fan.ray_step + offsets[None, :]).astype(np.int64) % fan.rays)
     divisor = max(1, int(round(range_bin / fan.range_resolution)))
     table = _bin_table(divisor)
     observed = table[live.codes[usable]]
-    no_return = table[NO_RETURN]
-
-    def holds(block: NDArray[np.int64]) -> NDArray[np.bool_]:
-        """``(n * H, J)``: whether each pose of these positions holds each live hit."""
-        expected = table[index.fans[block][:, rays]]  # (n, H, J)
-        match = np.abs(expected - observed) <= tolerance_bins
-        if no_return_terms:
-            match |= (expected == no_return) & (observed == no_return)
-        return match.reshape(-1, match.shape[-1])
-
-    # Blocks of positions bound the memory of the (positions x headings x beams) comparison.
-    blocks = [position_ids[i : i + _STEP2_BLOCK] for i in range(0, len(position_ids), _STEP2_BLOCK)]
-    matches = [holds(blocks[0])] if len(blocks) == 1 else None
-    if use_idf:
-        frequency = np.zeros(len(observed))
-        pose_count = 0
-        for block in blocks if matches is None else []:
-            held = holds(block)
-            frequency += held.sum(axis=0)
-            pose_count += held.shape[0]
-        if matches is not None:
-            frequency, pose_count = matches[0].sum(axis=0, dtype=np.float64), matches[0].shape[0]
-        weights = pose_count / np.maximum(frequency, 1.0)
-        if idf_log:
-            weights = np.log(weights)
-    else:
-        weights = np.ones(len(observed))
-    if matches is not None:
-        scores = matches[0] @ weights
-    else:
-        scores = np.concatenate([holds(block) @ weights for block in blocks])
-    grid: NDArray[np.float64] = np.empty((len(position_ids), heading_count, 3))
-    grid[..., :2] = index.positions[position_ids][:, None, :]
+    no_return = int(table[NO_RETURN])
+    ids = np.ascontiguousarray(position_ids, dtype=np.int64)
+    pose_count = len(ids) * heading_count
+    held = np.empty((pose_count, len(observed)), dtype=np.bool_)
+    frequency = np.zeros(len(observed))
+    _step2_held(index.fans, ids, rays, observed, table, tolerance_bins, no_return_terms, no_return, held, frequency)
+    share = frequency / pose_count
+    weights = pose_count / np.maximum(frequency, 1.0) if use_idf else np.ones(len(observed))
+    if use_idf and idf_log:
+        weights = np.log(weights)
+    scores = np.empty(pose_count)
+    _step2_scores(held, np.ascontiguousarray(weights, dtype=np.float64), scores)
+    ranges = live.ranges[usable]
+    if evidence is not None:
+        # A hit's chance value: its weight times the share of poses holding it; none for no-returns.
+        neutral_values = np.ascontiguousarray(np.where(np.isfinite(ranges), weights * share, 0.0))
+        # Only poses that could still reach the best ``exact`` are looked up: the neutral part adds at most
+        # the sum of the neutral values to a pose's score.
+        exact = min(max(int(exact), 1), pose_count)
+        floor = np.partition(scores, pose_count - exact)[pose_count - exact]
+        reach = np.flatnonzero(scores + neutral_values.sum() >= floor)
+        beam_angles = headings[:, None] + live.angles[usable][None, :]
+        cells = np.where(np.isfinite(ranges), ranges, 0.0)[None, :] / evidence.resolution
+        xy = (index.positions[ids] - np.asarray(evidence.origin)) / evidence.resolution
+        _step2_neutral(
+            held, neutral_values, np.ascontiguousarray(xy, dtype=np.float64),
+            np.ascontiguousarray(cells * np.cos(beam_angles)), np.ascontiguousarray(cells * np.sin(beam_angles)),
+            evidence.flags, reach, scores,
+        )
+    grid: NDArray[np.float64] = np.empty((len(ids), heading_count, 3))
+    grid[..., :2] = index.positions[ids][:, None, :]
     grid[..., 2] = np.asarray(wrap_angle(headings))[None, :]
     poses = grid.reshape(-1, 3)
     order = np.argsort(-scores, kind="stable")

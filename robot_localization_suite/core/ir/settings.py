@@ -28,25 +28,33 @@ class IRSettings(Settings):
     """Settings of :class:`~.localizer.IRLocalizer`: scanner model, precomputation (IV-A), query (IV-B),
     tracking (IV-C, IV-D) and the index cache."""
 
-    # scanner model (0: from the first scan)
-    beam_count: int = setting(0, "scanner beams; 0: from the first scan", low=0, high=100_000, read_only=True)
-    field_of_view: float = setting(0.0, "scanner field of view; 0: from the first scan", unit="rad",
-                                   low=0.0, high=2.0 * math.pi, read_only=True)
-    max_range: float = setting(0.0, "longest range precomputed, capped at 254 * range_resolution; 0: the first "
-                               "scan's range_max", unit="m", low=0.0, high=1e4, read_only=True)
+    # scanner model (0: from the first scan); all three given: the index is built with the map
+    beam_count: int = setting(0, "scanner beams; with field_of_view and max_range the index is built with the "
+                              "map; 0: from the first scan", low=0, high=100_000, read_only=True)
+    field_of_view: float = setting(0.0, "scanner angle_max - angle_min (first to last beam); 0: from the first scan",
+                                   unit="rad", low=0.0, high=2.0 * math.pi, read_only=True)
+    max_range: float = setting(0.0, "longest range precomputed (the scanner's range_max), capped at 254 * "
+                               "range_resolution; 0: the first scan's range_max", unit="m", low=0.0, high=1e4,
+                               read_only=True)
     angular_resolution: float = setting(math.radians(1.0), "precomputed rays at least this far apart "
                                         "(ours 1 deg; paper 1/3 deg)", unit="rad", low=1e-4, high=math.pi / 4,
                                         read_only=True)
     # precomputation (IV-A)
     grid_resolution: float = setting(0.05, "spacing of the candidate positions (paper 0.05)", unit="m",
                                      low=0.005, high=10.0, read_only=True)
-    range_resolution: float = setting(0.05, "quantisation of stored ranges", unit="m", low=0.001, high=1.0,
+    range_resolution: float = setting(0.10, "quantisation of stored ranges; max_range is capped at 254 times "
+                                      "this (0.05 before 2026-12: 12.7 m)", unit="m", low=0.001, high=1.0,
                                       read_only=True)
+    max_positions: int = setting(300_000, "the lattice is widened (grid_resolution x k, k >= 1) until at most this "
+                                 "many candidate positions remain: bounds the index (about 1 + fan rays bytes each) "
+                                 "and its build on large maps; 0: no limit (ours)", low=0, high=1_000_000_000,
+                                 read_only=True)
     min_clearance: float = setting(0.15, "positions at least this far from obstacles and unknown cells", unit="m",
                                    low=0.0, high=10.0, read_only=True)
     unknown_blocks: bool = setting(False, "unknown cells stop the precomputed rays", read_only=True)
-    pattern_max_range: float = setting(5.5, "beyond this a reading ends a pattern (paper 5.5)", unit="m",
-                                       low=0.01, high=1e4, read_only=True)
+    pattern_max_range: float = setting(5.5, "beyond this a reading ends a pattern (paper 5.5, its laser's range); "
+                                       "0: the precomputed range (max_range)", unit="m", low=0.0, high=1e4,
+                                       read_only=True)
     pattern_range_bin: float = setting(0.10, "range bin of a first-level hit", unit="m", low=0.001, high=10.0,
                                        read_only=True)
     pattern_terms_per_end: int = setting(30, "beams indexed from each end of a pattern", low=1, high=100_000,
@@ -67,6 +75,13 @@ class IRSettings(Settings):
     use_idf: bool = setting(True, "step 2: idf weights (paper); false: plain counting")
     idf_log: bool = setting(False, "step 2: log(N / df) instead of the paper's N / df")
     no_return_terms: bool = setting(True, "step 2: no-return readings are hits of their own bin")
+    neutral_unknown: bool = setting(True, "end points in unknown cells or off the map score at the map's chance "
+                                    "level in step 2, the ranking and the tracker; false: as misses (paper)")
+    rank_score: str = setting("likelihood_ratio", "refined candidates ranked by their end points' mean log "
+                              "likelihood ratio against chance, or by the mean end-point weight (before 2026-12)",
+                              choices=("likelihood_ratio", "mean_weight"))
+    outlier_share: float = setting(0.05, "likelihood_ratio: share of beams the map does not explain (bounds what "
+                                   "one such beam costs)", low=0.0, low_open=True, high=1.0)
     refine_candidates: int = setting(300, "best step-2 poses aligned to the map and re-ranked; 0: paper's list",
                                      low=0, high=1_000_000)
     refine_iterations: int = setting(8, "Gauss-Newton iterations of the refinement", low=0, high=1000)
@@ -112,6 +127,8 @@ class IRSettings(Settings):
                              read_only=True)
     use_cache: bool = setting(True, "load and save the precomputed index on disk", read_only=True)
     progress: bool = setting(True, "show a progress bar while precomputing")
+    index_memory_mb: float = setting(256.0, "an index whose cache file is larger is memory-mapped from it (only what "
+                                     "the queries touch stays resident); 0: always", unit="MB", low=0.0, high=1e9)
     cache_budget_mb: float = setting(0.0, "after writing an index, delete the least recently used ones beyond this; "
                                      "0: $RLS_CACHE_BUDGET_MB or 2048", unit="MB", low=0.0, high=1e9)
 
@@ -135,6 +152,25 @@ class IRSettings(Settings):
     @property
     def heading_count(self) -> int:
         return max(1, int(round(2.0 * math.pi / self.heading_step)))
+
+    @property
+    def scanner_configured(self) -> bool:
+        """Whether the settings give the scanner (``beam_count``, ``field_of_view``, ``max_range``)."""
+        return self.beam_count > 1 and self.field_of_view > 0.0 and self.max_range > 0.0
+
+    def configured_fan_model(self) -> FanModel:
+        """The fan for the scanner the settings describe (:attr:`scanner_configured`): its beams
+        ``field_of_view / (beam_count - 1)`` apart, as a LaserScan's ``angle_increment``.
+
+        Raises:
+            SettingsError: the settings do not describe the scanner.
+        """
+        if not self.scanner_configured:
+            raise SettingsError(
+                "IRSettings: beam_count (> 1), field_of_view and max_range must all be given to build the index "
+                f"before the first scan, got {self.beam_count!r}, {self.field_of_view!r}, {self.max_range!r}"
+            )
+        return self.fan_model(self.field_of_view / (self.beam_count - 1), self.max_range)
 
     def fan_model(self, increment: float, range_max: float) -> FanModel:
         """The fan for a scanner with this angular ``increment`` [rad] and ``range_max`` [m]."""

@@ -10,9 +10,11 @@ candidate comes from circular cross-correlation of the profiles (section
 2.5), and the best candidate is the estimate.
 
 Beyond the paper: candidates ranked by the level functions rather than only
-filtered, a truncated squared-difference score, sub-tile refinement, heading
-sheets for a limited field of view, and an escape from the window when places
-outside it keep scoring better.
+filtered, a coarse-to-fine correlation of many tiles, a truncated
+squared-difference score in which unknown space and readings shorter than the
+map are weak evidence, sub-tile refinement, heading sheets for a limited field
+of view, and an escape from the window when places outside it keep scoring
+better.
 
 Notes (choices, departures, status, measured figures): docs/pil.md.
 """
@@ -33,28 +35,33 @@ from ..filter.odometry_gate import OdometryGate
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
-from ..raycast import RayCaster
+from ..raycast import RAY_UNKNOWN, ClassifiedRayCaster
 from ..scan import Scan
 from ..se2 import angle_difference, compose, relative, wrap_angle
-from .learning import PilLearning, learn_pseudo_images
+from .learning import PilLearning, encode_ranges, learn_pseudo_images
 from .levels import (
     LevelFunction,
     energy,
     fill_invalid_circular,
     harmonic_magnitude,
+    learned_level_features,
     pq_fraction,
     profile_quantile,
 )
 from .matching import (
     BeamMapping,
+    LevelIndex,
     LiveProfile,
     SensorLayout,
     check_live_profile,
-    correlate_profiles,
-    feature_distances,
-    sheet_features,
+    correlate_tiles,
+    cost_table,
+    decode_features,
+    encode_features,
+    profile_costs,
+    rank_tiles,
+    select_ranked,
     sheet_sectors,
-    truncated_scores,
 )
 from .settings import LEVEL_FUNCTION_NAMES, PilSettings
 
@@ -125,11 +132,13 @@ class PilLocalizer:
         self._range = self.settings.max_range
         self.grid_map: GridMap | None = None
         self.learning: PilLearning | None = None
-        self._caster: RayCaster | None = None
+        self._caster: ClassifiedRayCaster | None = None
         self._distance_field: DistanceField | None = None
         self._mapping: BeamMapping | None = None
-        self._sheets_key: tuple[float, ...] | None = None
-        self._sheet_features: NDArray[np.float32] | None = None
+        self._sheets_key: tuple[int, ...] | None = None
+        self._sheet_features: NDArray[np.uint8] | None = None
+        self._tile_index: NDArray[np.int32] | None = None
+        self._level_index: LevelIndex | None = None
         self._last_passes: NDArray[np.bool_] | None = None
         self._tracked_pose: NDArray[np.float64] | None = None
         # Latest odometry; the reference is the odometry at the tracked pose (no gate: PIL runs on every scan).
@@ -138,11 +147,22 @@ class PilLocalizer:
 
     # -- Localizer protocol -------------------------------------------------------
     def set_map(self, grid_map: GridMap) -> None:
-        """Learn (or load) the pseudo-images of ``grid_map`` for the current sensor geometry."""
+        """Learn (or load) the pseudo-images of ``grid_map`` and their level functions for the set field of view.
+
+        A scanner whose field of view or range differs from the settings is learned again
+        by :meth:`prepare` or its first scan (with a warning).
+        """
         self.grid_map = grid_map
-        self._distance_field = DistanceField(grid_map)
+        self.learning = None
+        self._sheet_features = None
         self._learn()
+        # The float32 distance field, gradients taken where sampled: 4 bytes a cell.
+        self._distance_field = DistanceField(grid_map, compact=True)
         self.reinitialize()
+
+    def prepare(self, scan: Scan) -> None:
+        """Learn for this scanner's geometry now (field of view, range, beam layout) rather than in its first scan."""
+        self._prepare(scan)
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
         """Odometry moves the window centre between scans; it is not used otherwise (non-finite or older: ignored)."""
@@ -259,7 +279,7 @@ class PilLocalizer:
         if self.learning is None or self._sheet_features is None:
             raise MapError("PIL has not learned a map yet")
         return {
-            function.name: self.learning.pseudo_image(self._sheet_features[sheet, f])
+            function.name: self.learning.pseudo_image(decode_features(self._sheet_features[:, sheet, f]))
             for f, function in enumerate(self.level_functions)
         }
 
@@ -267,24 +287,32 @@ class PilLocalizer:
     def _learn(self) -> None:
         if self.grid_map is None:
             raise MapError("PIL has no map to learn")
+        settings = self.settings
+        self._sheet_features = None  # the old features go before the new learning is made
+        self.learning = None
+        if self._caster is None or self._caster.grid_map is not self.grid_map or self._caster.max_range != self._range:
+            self._caster = None
+            self._caster = ClassifiedRayCaster(self.grid_map, max_range=self._range,
+                                               unknown_stops=settings.unknown_blocks and not settings.mark_unknown_rays)
         self.learning = learn_pseudo_images(
             self.grid_map,
-            tile_size=self.settings.tile_size,
+            tile_size=settings.tile_size,
             angle_count=self._layout.angle_count,
             max_range=self._range,
-            unknown_blocks=self.settings.unknown_blocks,
-            cache_dir=self.settings.cache_dir or None,
-            use_cache=self.settings.use_cache,
-            show_progress=self.settings.show_progress,
+            unknown_blocks=settings.unknown_blocks,
+            mark_unknown=settings.mark_unknown_rays,
+            cache_dir=settings.cache_dir or None,
+            use_cache=settings.use_cache,
+            mmap_bytes=int(settings.cache_mmap_mb * 2**20),
+            show_progress=settings.show_progress,
             log=self._emit,
+            caster=self._caster,
         )
-        self.learning.spectra  # noqa: B018 - derived once here, not in the first query
-        self._caster = RayCaster(self.grid_map, max_range=self._range, unknown_blocks=self.settings.unknown_blocks)
+        self._tile_index = self.learning.tile_index_image()
         self._sheets_key = None
-        self._sheet_features = None
         self._mapping = None
-        if self.learning is not None and self._layout.full_circle:
-            self._ensure_sheets(0.0)
+        # The level functions for a scan centred on the laser's x axis; another centre recomputes them.
+        self._ensure_sheets(-0.5 * (self._layout.sensor_count - 1) * self._layout.sensor_spacing)
 
     def _prepare(self, scan: Scan) -> dict[str, Any]:
         """Check the scan against the learning; relearn (with a warning) when its geometry differs."""
@@ -312,13 +340,21 @@ class PilLocalizer:
         if new_range < self._range - 1e-3 or (self._range < self.settings.max_range and new_range > self._range + 1e-3):
             reasons.append(f"the scan's range_max is {scan.range_max:.2f} m but PIL learned R = {self._range:.2f} m")
         if reasons:
-            text = "; ".join(reasons) + f": relearning for {math.degrees(new_fov):.1f} deg and R = {new_range:.2f} m"
+            layout = replace(self._layout, field_of_view=new_fov)
+            if layout.angle_count == self.learning.angle_count and abs(new_range - self._range) <= 1e-3:
+                # The learned rays do not depend on the field of view, only their directions' count.
+                text = "; ".join(reasons) + (f": the learned rays serve for {math.degrees(new_fov):.1f} deg as they are, "
+                                             "its level functions are computed again")
+                self._layout = layout
+                self._mapping = None
+            else:
+                text = "; ".join(reasons) + f": relearning for {math.degrees(new_fov):.1f} deg and R = {new_range:.2f} m"
+                self._layout = layout
+                self._range = new_range
+                self._learn()
+                notes["relearned"] = True
             self._emit("warn", text)
-            self._layout = replace(self._layout, field_of_view=new_fov)
-            self._range = new_range
-            self._learn()
             notes["warning"] = text
-            notes["relearned"] = True
         if self._mapping is None or not self._mapping.matches(scan):
             self._mapping = BeamMapping(self._layout, scan, self.settings.beam_mapping)
         self._ensure_sheets(float(self._mapping.sensor_angles[0]))
@@ -327,12 +363,29 @@ class PilLocalizer:
     def _ensure_sheets(self, first_sensor_angle: float) -> None:
         """Level functions of every tile on every heading sheet (recomputed when the sensor offset changes)."""
         assert self.learning is not None
-        key = (0.0,) if self._layout.full_circle else (round(first_sensor_angle, 9),)
+        sectors = sheet_sectors(self._layout, first_sensor_angle, self.settings.reference_headings)
+        key = tuple(int(start) for start in sectors[:, 0])  # the learned directions each sheet starts at
         if self._sheets_key == key and self._sheet_features is not None:
             return
-        sectors = sheet_sectors(self._layout, first_sensor_angle, self.settings.reference_headings)
-        self._sheet_features = sheet_features(self.learning.intensities, sectors, self.level_functions)
+        self._sheet_features = None
+        self._sheet_features = self._level_bytes(sectors)
+        self._level_index = LevelIndex(self._sheet_features, self.learning.tile_lines, self.learning.tile_columns)
         self._sheets_key = key
+
+    def _level_bytes(self, sectors: NDArray[np.int64]) -> NDArray[np.uint8]:
+        """Level functions ``(T, S, F)`` of every tile and sheet as bytes, computed in pieces."""
+        assert self.learning is not None
+        settings = self.settings
+        names = [f.name for f in self.level_functions]
+        codes = self.learning.codes
+        out = np.empty((codes.shape[0], sectors.shape[0], len(names)), dtype=np.uint8)
+        step = 1 << 16
+        for first in range(0, codes.shape[0], step):
+            out[first : first + step] = encode_features(learned_level_features(
+                codes[first : first + step], sectors, names, pq_low=settings.pq_low, pq_high=settings.pq_high,
+                low_level=settings.low_quantile_level, high_level=settings.high_quantile_level,
+            ))
+        return out
 
     # -- on-line ------------------------------------------------------------------
     def _live_profile(self, scan: Scan) -> LiveProfile:
@@ -356,51 +409,81 @@ class PilLocalizer:
 
     def _select_tiles(
         self, profile: LiveProfile, centre: NDArray[np.float64] | None
-    ) -> tuple[NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.bool_]]:
-        """Candidate tiles (ranked), which of them are global sentinels outside the window,
-        the count passing equation (4) in the searched area, and the pass mask over all tiles."""
-        assert self.learning is not None and self._sheet_features is not None
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], int, NDArray[np.bool_]]:
+        """Candidate tiles in the searched area, global sentinels outside the window, the count
+        passing equation (4) in the searched area (among the tiles scored), and their pass mask.
+
+        Candidates are taken passing equation (4) first, then by rank: ``min_candidates`` of
+        them, or (``min_candidates`` 0, the paper's filter) the passing ones only, at most
+        ``max_candidates``.
+        """
+        assert self.learning is not None and self._sheet_features is not None and self._level_index is not None
         settings = self.settings
-        passes, rank = feature_distances(
-            self._sheet_features, self._live_features(profile), self._alphas, self._sigmas, settings.rank_term_cap
-        )
-        if centre is None:
-            area: NDArray[np.bool_] = np.ones(passes.size, dtype=bool)
-        else:
-            offset = np.abs(self.learning.tile_centres - centre[None, :2])
-            area = (offset[:, 0] <= 0.5 * settings.window_size) & (offset[:, 1] <= 0.5 * settings.window_size)
-        pass_mask = passes & area
-        chosen = _best_ranked(np.flatnonzero(pass_mask), rank, settings.max_candidates)
-        wanted = min(settings.min_candidates, int(area.sum()))
-        if chosen.size < wanted:
-            chosen = np.concatenate([chosen, _best_ranked(np.flatnonzero(area & ~passes), rank, wanted - chosen.size)])
+        live = self._live_features(profile)
+        pass_mask = np.zeros(self.learning.tile_count, dtype=bool)
         sentinels: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
-        if centre is not None and settings.global_candidates > 0:
-            sentinels = _best_ranked(np.flatnonzero(~area), rank, settings.global_candidates)
-        tiles = np.concatenate([chosen, sentinels])
-        is_sentinel = np.concatenate([np.zeros(chosen.size, dtype=bool), np.ones(sentinels.size, dtype=bool)])
-        return tiles, is_sentinel, int(pass_mask.sum()), pass_mask
+        wanted = settings.min_candidates if settings.min_candidates > 0 else settings.max_candidates
+        if centre is None:
+            ranked = self._level_index.query(live, self._alphas, self._sigmas, settings.rank_term_cap, wanted)
+            area_tiles, rank, passes = ranked.tiles, ranked.rank, ranked.passes
+        else:
+            area_tiles = self._window_tiles(centre)
+            passes, rank = rank_tiles(self._sheet_features[area_tiles], live, self._alphas, self._sigmas,
+                                      settings.rank_term_cap)
+            if settings.global_candidates > 0:
+                ranked = self._level_index.query(live, self._alphas, self._sigmas, settings.rank_term_cap,
+                                                 settings.global_candidates + area_tiles.size)
+                outside = np.flatnonzero(~np.isin(ranked.tiles, area_tiles))
+                sentinels = ranked.tiles[outside[select_ranked(ranked.rank[outside], ranked.passes[outside],
+                                                               settings.global_candidates)]]
+        pass_mask[area_tiles[passes]] = True
+        chosen = select_ranked(rank, passes, wanted)
+        if settings.min_candidates == 0:
+            chosen = chosen[passes[chosen]]
+        return area_tiles[chosen], sentinels, int(passes.sum()), pass_mask
+
+    def _window_tiles(self, centre: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Tiles whose centre is within the square window around ``centre``."""
+        assert self.learning is not None and self._tile_index is not None
+        grid = self.learning.grid
+        half = 0.5 * self.settings.window_size
+        low = np.floor(grid.world_to_image(centre[:2] - half) - 1e-9).astype(np.int64)
+        high = np.ceil(grid.world_to_image(centre[:2] + half) + 1e-9).astype(np.int64)
+        low = np.clip(low, 0, [grid.lines, grid.columns])
+        high = np.clip(high + 1, 0, [grid.lines, grid.columns])
+        block = self._tile_index[low[0] : high[0], low[1] : high[1]]
+        tiles = block[block >= 0].astype(np.int64)
+        offset = np.abs(self.learning.tile_centres[tiles] - centre[None, :2])
+        return np.sort(tiles[(offset[:, 0] <= half) & (offset[:, 1] <= half)])
 
     def _search(self, scan: Scan, profile: LiveProfile, centre: NDArray[np.float64] | None) -> _Search:
         assert self.learning is not None and self._caster is not None and self._distance_field is not None
         settings = self.settings
-        tiles, is_sentinel, filter_count, pass_mask = self._select_tiles(profile, centre)
+        learning = self.learning
+        chosen, sentinels, filter_count, pass_mask = self._select_tiles(profile, centre)
         self._last_passes = pass_mask
-        if tiles.size == 0:
-            return _Search(np.zeros((0, 3)), np.zeros(0), filter_count, 0, pass_mask, tiles, 0, is_sentinel)
-        correlation = correlate_profiles(
-            self.learning.intensities,
-            self.learning.spectra,
-            tiles,
-            profile,
-            self._layout.upsampling,
-            settings.score_truncation,
-            settings.shift_hypotheses,
-        )
-        step = self.learning.angle_step
-        thetas = wrap_angle(correlation.shifts * step - profile.sensor_angles[0])
-        poses = np.column_stack([self.learning.tile_centres[tiles], np.atleast_1d(thetas)])
-        scores = correlation.scores.copy()
+        table = self._table(profile)
+        found = []
+        neighbours = None
+        if settings.coarse_block > 1:
+            assert self._tile_index is not None
+            neighbours = (self._tile_index, learning.tile_lines, learning.tile_columns)
+        for tiles, keep in ((chosen, settings.fine_candidates), (sentinels, settings.global_candidates)):
+            if tiles.size:
+                if neighbours is not None:
+                    tiles = self._block_representatives(tiles)
+                found.append(correlate_tiles(learning.codes, tiles, table, profile.valid, self._layout.directions_per_sensor,
+                                             keep=keep, per_tile=settings.shift_hypotheses,
+                                             coarse_sensors=settings.coarse_sensors, neighbours=neighbours))
+        if not found:
+            return _Search(np.zeros((0, 3)), np.zeros(0), filter_count, 0, pass_mask, np.zeros(0, np.int64), 0,
+                           np.zeros(0, dtype=bool))
+        tiles = np.concatenate([h.tiles for h in found])
+        shifts = np.concatenate([h.shifts for h in found])
+        scores = np.concatenate([h.costs for h in found])
+        is_sentinel = np.concatenate([np.full(h.tiles.size, i == 1 and centre is not None) for i, h in enumerate(found)])
+        thetas = wrap_angle(shifts * learning.angle_step - profile.sensor_angles[0])
+        poses = np.column_stack([learning.tile_centres[tiles], np.atleast_1d(thetas)])
         order = np.argsort(scores, kind="stable")
         poses, scores, tiles, is_sentinel = poses[order], scores[order], tiles[order], is_sentinel[order]
 
@@ -421,14 +504,41 @@ class PilLocalizer:
                 truncation=settings.refine_truncation,
             )
             both = np.concatenate([poses[:refined], better])
-            cast = self._caster.cast(both, profile.sensor_angles)
-            recast = truncated_scores(1.0 - np.minimum(cast, self._range) / self._range, profile, settings.score_truncation)
+            recast = profile_costs(self._pose_codes(both, profile), table, profile.valid)
             use_refined = recast[refined:] <= recast[:refined]
             poses[:refined] = np.where(use_refined[:, None], better, poses[:refined])
             scores[:refined] = np.minimum(recast[:refined], recast[refined:])
             order = np.argsort(scores, kind="stable")
             poses, scores, tiles, is_sentinel = poses[order], scores[order], tiles[order], is_sentinel[order]
+        if centre is not None and scores.size:
+            # Equal scores (a symmetric place and its twin): the one nearer the tracked pose first.
+            near = np.hypot(poses[:, 0] - centre[0], poses[:, 1] - centre[1])
+            order = np.lexsort((near, np.round(scores, 6)))
+            poses, scores, tiles, is_sentinel = poses[order], scores[order], tiles[order], is_sentinel[order]
         return _Search(poses, scores, filter_count, len(poses), pass_mask, tiles, refined, is_sentinel)
+
+    def _table(self, profile: LiveProfile) -> NDArray[np.float32]:
+        settings = self.settings
+        return cost_table(profile, settings.score_truncation, unknown_cost=settings.unknown_cost,
+                          short_cost=settings.short_cost)
+
+    def _block_representatives(self, tiles: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The first tile of ``tiles`` (ranked, best first) in each block of ``coarse_block`` x ``coarse_block`` tiles."""
+        assert self.learning is not None
+        block = self.settings.coarse_block
+        keys = (self.learning.tile_lines[tiles].astype(np.int64) // block) * (self.learning.grid.columns // block + 1) + (
+            self.learning.tile_columns[tiles].astype(np.int64) // block
+        )
+        _, first = np.unique(keys, return_index=True)
+        return tiles[np.sort(first)]
+
+    def _pose_codes(self, poses: NDArray[np.float64], profile: LiveProfile) -> NDArray[np.uint8]:
+        """Learned bytes ``(P, N_s)`` of the sensors at arbitrary poses, cast as the learning casts them."""
+        assert self._caster is not None
+        ranges, outcome = self._caster.cast(poses, profile.sensor_angles)
+        if self.settings.mark_unknown_rays:
+            ranges[outcome == RAY_UNKNOWN] = np.nan
+        return encode_ranges(ranges, self._range)
 
     def _estimate(self, scan: Scan, search: _Search, window: str, notes: dict[str, Any]) -> Estimate:
         settings = self.settings

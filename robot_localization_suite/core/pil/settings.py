@@ -44,10 +44,16 @@ class PilSettings(Settings):
         unit="rad", ros_unit="deg", low=0.0, low_open=True, high=2.0 * math.pi, ros_name="field_of_view_deg",
         read_only=True,
     )
-    angular_upsampling: int = setting(4, "learned directions per sensor step (ours)", low=1, high=64, read_only=True)
+    angular_upsampling: int = setting(4, "learned directions per sensor step of N_s sensors over 360 deg: the learned "
+                                      "angular step is 2 pi / (N_s x this) for any field of view (ours)", low=1,
+                                      high=64, read_only=True)
     reference_headings: int = setting(8, "K: heading sheets for a limited field of view (ours)", low=1, high=360,
                                       read_only=True)
-    unknown_blocks: bool = setting(False, "unknown map cells stop the learning rays", read_only=True)
+    mark_unknown_rays: bool = setting(
+        True, "a learned ray that leaves the map, or crosses unknown space and hits nothing, is unknown: no evidence "
+        "either way (ours); false: it reads what it finds, as in the paper's fully known environment", read_only=True)
+    unknown_blocks: bool = setting(False, "without mark_unknown_rays: unknown map cells stop the learning rays as "
+                                   "walls do", read_only=True)
     beam_mapping: str = setting("nearest", "live beams -> sensors", choices=BEAM_MAPPINGS)
 
     energy_enabled: bool = setting(True, "use the level function Energy (mean intensity, paper I_1)")
@@ -75,9 +81,15 @@ class PilSettings(Settings):
     high_quantile_alpha: float = _alpha("high_quantile")
     high_quantile_sigma: float = _sigma("high_quantile", 0.02)
 
-    min_candidates: int = setting(600, "best-ranked tiles added when fewer pass equation (4); 0: pure filter (ours)",
-                                  low=0, high=1_000_000)
-    max_candidates: int = setting(1000, "most candidate tiles correlated per scan (ours)", low=1, high=1_000_000)
+    min_candidates: int = setting(5000, "best-ranked tiles added when fewer pass equation (4); 0: pure filter "
+                                  "(ours)", low=0, high=10_000_000)
+    max_candidates: int = setting(5000, "most candidate tiles correlated per scan (ours)", low=1, high=10_000_000)
+    fine_candidates: int = setting(300, "best (tile, heading) pairs of the coarse correlation taken to the learned "
+                                   "angular step (ours)", low=1, high=1_000_000)
+    coarse_sensors: int = setting(19, "sensors the coarse correlation compares, evenly spread (ours)", low=1,
+                                  high=4096)
+    coarse_block: int = setting(2, "the coarse correlation scores the best-ranked tile of each block of n x n tiles, "
+                                "the fine one it and its neighbours; 1: every tile (ours)", low=1, high=2)
     rank_term_cap: float = setting(9.0, "cap of each level function's squared term in the candidate ranking (ours)",
                                    low=0.0, low_open=True, high=_BIG)
     window_size: float = setting(4.0, "side of the square search window around the last estimate; <= 0: whole map "
@@ -89,7 +101,11 @@ class PilSettings(Settings):
 
     score_truncation: float = setting(0.1, "tau of the truncated squared profile difference (ours)", unit="intensity",
                                       low=0.0, low_open=True, high=1.0)
-    shift_hypotheses: int = setting(3, "correlation optima rescored per candidate (ours)", low=1, high=64)
+    unknown_cost: float = setting(0.5, "cost of a sensor whose learned ray is unknown, between a match (0) and a "
+                                  "contradiction (1) (ours)", low=0.0, high=1.0)
+    short_cost: float = setting(1.0, "most a reading shorter than the learned range costs (something unmapped in "
+                                "front); 1: as any mismatch (ours)", low=0.0, high=1.0)
+    shift_hypotheses: int = setting(3, "correlation optima kept per candidate tile (ours)", low=1, high=64)
     refine_candidates: int = setting(20, "best candidates refined below the tile size; 0: off (ours)",
                                      low=0, high=10_000)
     refine_iterations: int = setting(10, "Gauss-Newton iterations of the refinement", low=1, high=100)
@@ -111,6 +127,8 @@ class PilSettings(Settings):
     cache_dir: str = setting("", "learning cache directory; empty: $RLS_CACHE_DIR or ~/.cache/robot_localization_suite",
                              read_only=True)
     use_cache: bool = setting(True, "read and write the learning cache", read_only=True)
+    cache_mmap_mb: float = setting(256.0, "learned rays above this size are memory-mapped from the cache file "
+                                   "instead of held in memory", unit="MB", low=0.0, high=1e6, read_only=True)
     show_progress: bool = setting(True, "progress bar while learning")
 
     def validate(self) -> None:
