@@ -92,7 +92,7 @@ def test_a_short_soak_writes_its_table_json_and_plot(tmp_path: Path, ros_domain_
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert "[soak]" in run.stdout and "measuring" in run.stdout  # progress lines
-    for name in ("soak.md", "soak.json", "soak.png", "nodes.log", "scenario_tour.yaml"):
+    for name in ("soak.md", "soak.json", "soak.png", "stamps.npz", "nodes.log", "scenario_tour.yaml"):
         assert (out / name).stat().st_size > 0, name
     summary = json.loads((out / "soak.json").read_text())
     assert set(summary["processes"]) == {"scan_sim", "mcl_baseline", "rls_soak"}

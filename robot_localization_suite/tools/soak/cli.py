@@ -363,6 +363,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = _summary(args, soak, localizers, scenario, tour, laser_hz, camera_rate, load_start, result)
     (out / "soak.md").write_text(_markdown(summary))
     write_json(out / "soak.json", summary, soak.series)
+    monitor.save(out / "stamps.npz")
     window = soak.window()
     write_plot(out / "soak.png", soak.series, dict(monitor.poses), soak.t0_wall, window,
                f"rls_soak {summary['date']}: {summary['settings']['scenario']} at {args.speed:g}x, "

@@ -99,6 +99,17 @@ class StampMonitor:
     def start(self) -> None:
         self._thread.start()
 
+    def save(self, path: Any) -> None:
+        """Every receive time and stamp [s], for a closer look: ``scan_*``, ``<name>_pose_*``, ``<name>_tf_stamp``."""
+        import numpy as np
+
+        arrays = {"scan_received": self.scans[0], "scan_stamp": self.scans[1], "epoch": [self.epoch or np.nan]}
+        for name, (received, stamps) in self.poses.items():
+            arrays[f"{name}_pose_received"], arrays[f"{name}_pose_stamp"] = received, stamps
+            arrays[f"{name}_tf_stamp"] = self.tf_stamps[name]
+        data: dict[str, Any] = {key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()}
+        np.savez_compressed(path, **data)
+
     def stop(self) -> None:
         # Stop spinning before the node goes: a spinning thread left at exit aborts the interpreter.
         self._executor.shutdown(timeout_sec=2.0)
