@@ -6,6 +6,7 @@
 #   make bench BENCH_ARGS="--skip ial_localizer:fr101"   options of rls_bench (see .venv/bin/rls_bench --help)
 #   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
 #   make bench-campus                     IR and PIL on the Freiburg campus (its bag is made on demand)
+#   make soak SOAK_ARGS="--speed 10"      options of rls_soak (see .venv/bin/rls_soak --help)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -17,6 +18,8 @@ DEMO_ARGS ?=
 PYTEST_ARGS ?=
 BENCH_MAX_SECONDS ?= 300
 BENCH_ARGS ?=
+SOAK_MINUTES ?= 30
+SOAK_ARGS ?=
 # Real logs for the cross-validation runs; their 5-block splits are made once, when missing.
 CARMEN_DIR ?= ../shared/data/carmen
 CV_SPLITS ?= results/cv_splits
@@ -27,7 +30,7 @@ CV_LOG_FILE_orebro := orebro-corrected.log.gz
 CV_INDEXES := $(foreach log,$(CV_LOGS),$(CV_SPLITS)/$(log)_cv.yaml)
 HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 
-.PHONY: setup demo test bench bench-cv bench-campus lint clean
+.PHONY: setup demo test bench bench-cv bench-campus soak lint clean
 
 # Reinstalled whenever the package metadata changes.
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
@@ -95,6 +98,11 @@ endif
 $(CAMPUS_BAG)/metadata.yaml: | $(STAMP)
 	$(PY) -m robot_localization_suite.tools.carmen_to_bag $(CARMEN_DIR)/freiburg-campus-corrected.log.gz \
 		$(CAMPUS_BAG) --overwrite
+
+# Load and soak (docs/soak.md): scan_sim at 4x with every localizer for SOAK_MINUTES, each process's
+# RSS and CPU every 10 s, pose latency and dropped scans, into results/soak/ (soak.md, soak.json, soak.png).
+soak: $(STAMP) $(INTERFACES)
+	$(PY) -m robot_localization_suite.tools.soak --minutes $(SOAK_MINUTES) --out results/soak $(SOAK_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robot_localization_suite test

@@ -28,6 +28,14 @@ def test_the_plugin_builds_the_filter_from_the_packaged_params_file() -> None:
 
 def test_the_node_handles_a_message_feed_and_its_services() -> None:
     rclpy = pytest.importorskip("rclpy")
+    from rclpy.qos import (
+        HistoryPolicy,
+        QoSCompatibility,
+        QoSProfile,
+        ReliabilityPolicy,
+        qos_check_compatible,
+        qos_profile_sensor_data,
+    )
     from std_srvs.srv import Empty
 
     from robot_localization_suite.nodes.localizer_node import LocalizerNode
@@ -43,6 +51,12 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
         for param in parameters(MclSettings):
             assert node.has_parameter(param.name), param.name
         assert node.describe_parameter("sigma_hit").floating_point_range[0].to_value == 100.0
+        # scans: the newest one only (a slow update drops old scans rather than queueing them), and best
+        # effort, so that nav2-style sensor-data publishers and reliable ones (a bag player) both match
+        scan_qos = node.sensor_sub.qos_profile
+        assert scan_qos.depth == 1 and scan_qos.history is HistoryPolicy.KEEP_LAST
+        for publisher_qos in (qos_profile_sensor_data, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)):
+            assert qos_check_compatible(publisher_qos, scan_qos)[0] is not QoSCompatibility.ERROR, publisher_qos
         localizer = node.localizer
         assert localizer.settings.max_particles == 3000
         node.publish = lambda output, *_: published.append(output) if output is not None else None  # type: ignore[method-assign]

@@ -37,7 +37,7 @@ from ..registry import PLUGINS, config_dir
 from .dds import use_loopback
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
-__all__ = ["DemoMonitor", "LocalizerTrack", "SummaryRow", "main"]
+__all__ = ["DemoMonitor", "LocalizerTrack", "SummaryRow", "build_specs", "default_domain_id", "resolve_scenario", "main"]
 
 DEFAULT_SCENARIO = "office_kidnap"
 
@@ -260,7 +260,7 @@ class MonitorNode:
             self.monitor.on_diagnostics(status.hardware_id, status.message, update_ms)
 
 
-def _default_domain_id() -> int:
+def default_domain_id() -> int:
     if os.environ.get("ROS_DOMAIN_ID", "").isdigit():
         return int(os.environ["ROS_DOMAIN_ID"])
     # A domain of this run's own (101..232, clear of the test runs' 1..100) so that two demos on one
@@ -268,7 +268,7 @@ def _default_domain_id() -> int:
     return 101 + os.getpid() % 132
 
 
-def _resolve_scenario(value: str) -> Path:
+def resolve_scenario(value: str) -> Path:
     path = Path(value)
     if path.is_file():
         return path.resolve()
@@ -341,7 +341,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ..core.sim.scenario_yaml import load_scenario
 
     try:
-        scenario_path = _resolve_scenario(args.scenario)
+        scenario_path = resolve_scenario(args.scenario)
         scenario = load_scenario(scenario_path)
     except (RunError, ScenarioError) as exc:
         print(f"rls_demo: {exc}", file=sys.stderr)
@@ -354,7 +354,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         localizers = [name for name in localizers if name not in blind]
         if blind:
             print(f"[demo] left out (the scenario has no camera): {', '.join(blind)}", flush=True)
-    domain_id = args.domain_id if args.domain_id is not None else _default_domain_id()
+    domain_id = args.domain_id if args.domain_id is not None else default_domain_id()
     # The monitor in this process talks DDS on loopback too, on the nodes' domain.
     use_loopback(domain_id)
 

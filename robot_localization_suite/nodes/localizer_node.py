@@ -39,7 +39,7 @@ from ..ros.background import BackgroundWork
 from ..ros.conversions import initial_pose_from_msg, progress_diagnostics, stamp_to_seconds
 from ..ros.extras import Extra
 from ..ros.params import declare_settings, parameter_values
-from ..ros.qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
+from ..ros.qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_INPUT_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from .common import guarded, help_parser, run_node
 
 __all__ = ["LocalizerNode", "run_localizer", "topics_text"]
@@ -308,9 +308,11 @@ class LocalizerNode(LifecycleNode):
         entities = self._entities
         self.odom_sub: Any = None
         if self.plugin.uses_camera:
-            self.sensor_sub = sub(Image, "camera/image_raw", guarded(self, self._on_image, "image update"), SENSOR_QOS)
+            self.sensor_sub = sub(Image, "camera/image_raw", guarded(self, self._on_image, "image update"),
+                                  SENSOR_INPUT_QOS)
         else:
-            self.sensor_sub = sub(LaserScan, "scan", guarded(self, self._on_scan, "scan update"), SENSOR_QOS)
+            self.sensor_sub = sub(LaserScan, "scan", guarded(self, self._on_scan, "scan update"),
+                                  SENSOR_INPUT_QOS)
             entities.append(sub(OccupancyGrid, "map", guarded(self, self._on_map, "map"), MAP_QOS))
         entities.append(self.sensor_sub)
         if tf.TFMessage is not None:
