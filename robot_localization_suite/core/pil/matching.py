@@ -423,38 +423,12 @@ def _bound_kernel(low, high, live_bytes, terms, inside, bound, may_pass):
 
 
 @numba.njit(cache=True, nogil=True)
-def _heap_offer(heap, size, value):
-    """Offer ``value`` to a max-heap of fixed capacity holding the smallest values; returns the new size."""
-    capacity = heap.shape[0]
-    if size < capacity:
-        j = size
-        size += 1
-        while j > 0 and heap[(j - 1) // 2] < value:
-            heap[j] = heap[(j - 1) // 2]
-            j = (j - 1) // 2
-        heap[j] = value
-    elif value < heap[0]:
-        j = 0
-        while True:
-            child = 2 * j + 1
-            if child >= capacity:
-                break
-            if child + 1 < capacity and heap[child + 1] > heap[child]:
-                child += 1
-            if heap[child] <= value:
-                break
-            heap[j] = heap[child]
-            j = child
-        heap[j] = value
-    return size
-
-
-@numba.njit(cache=True, nogil=True)
 def _visit_kernel(features, order, starts, visit, bound, may_pass, terms, inside, count, out_tiles, out_rank,
                   out_pass):
     """Score the tiles of the blocks that may hold one of the ``count`` first (passing first, then by rank)."""
     passing = np.empty(count)  # the `count` best ranks among passing tiles so far (max-heap)
     others = np.empty(count)  # ... among the others
+    no_payload = np.empty(count, dtype=np.int64)  # the heaps keep ranks only
     n_passing = 0
     n_others = 0
     scored = 0
@@ -474,9 +448,9 @@ def _visit_kernel(features, order, starts, visit, bound, may_pass, terms, inside
             out_pass[scored] = passed
             scored += 1
             if passed:
-                n_passing = _heap_offer(passing, n_passing, best)
+                n_passing = _heap_push(passing, no_payload, no_payload, n_passing, best, 0, 0)
             else:
-                n_others = _heap_offer(others, n_others, best)
+                n_others = _heap_push(others, no_payload, no_payload, n_others, best, 0, 0)
     return scored
 
 
@@ -611,7 +585,9 @@ def correlate_tiles(
 
 @numba.njit(cache=True, nogil=True)
 def _heap_push(costs, tiles, shifts, size, cost, tile, shift):
-    """Push into a max-heap of fixed capacity (``size`` filled); returns the new size."""
+    """Push into a max-heap of fixed capacity (``size`` filled); returns the new size.
+
+    ``tiles`` and ``shifts`` move with ``costs`` (one scratch array may serve both when only costs matter)."""
     capacity = costs.shape[0]
     if size < capacity:
         i = size
