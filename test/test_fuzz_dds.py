@@ -24,6 +24,7 @@ from test_nav2_dropin import Process
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.launch.lifecycle import LifecycleManager
 from robot_localization_suite.ros import conversions
+from robot_localization_suite.ros.context_node import ContextNode
 
 RATE_HZ = 5.0
 RANGE_MAX = 8.0
@@ -35,24 +36,18 @@ def truth_at(t: float) -> np.ndarray:
     return np.array([1.8 - 0.8 * math.cos(phase), 1.3 + 0.2 * math.sin(phase), 0.3 * math.sin(phase)])
 
 
-class Robot:
+class Robot(ContextNode):
     """The probe: publishes the room's map and the robot's odometry and scans, and records the node's output."""
 
-    def __init__(self, rclpy: Any, node_name: str) -> None:
+    def __init__(self, node_name: str) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import OccupancyGrid, Odometry
-        from rclpy.executors import SingleThreadedExecutor
         from sensor_msgs.msg import LaserScan
 
         from robot_localization_suite.ros.qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_QOS
 
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("fuzz_robot", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__("fuzz_robot")
         grid_map = room()
         self.world = World(grid_map, conversions.grid_map_to_msg(grid_map, 0.0), [], [])
         self.caster = RayCaster(grid_map, max_range=RANGE_MAX)
@@ -80,6 +75,7 @@ class Robot:
         self.poses.append((conversions.stamp_to_seconds(msg.header.stamp), pose, covariance))
 
     def spin_for(self, seconds: float) -> None:
+        """Spin in short steps (the robot publishes between them)."""
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=max(0.0, min(0.02, deadline - time.monotonic())))
@@ -119,17 +115,12 @@ class Robot:
         return [math.hypot(*(pose[:2] - self.truth[min(self.truth, key=lambda t: abs(t - stamp))][:2]))
                 for stamp, pose, _ in self.poses if stamp > after]
 
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.rclpy.shutdown(context=self.context)
-
 
 @pytest.mark.parametrize("name", ["ial_localizer", "mcl_baseline"])
 def test_the_worst_fuzz_cases_over_dds_leave_the_node_publishing_finite_poses_that_localize(
     name: str, ros_domain_id: int
 ) -> None:
-    rclpy = pytest.importorskip("rclpy")
+    pytest.importorskip("rclpy")
     node_name = f"fuzz_{name}"
     args = ["-r", f"__node:={node_name}"]
     if name == "mcl_baseline":  # tracking only: it starts where it is told, as nav2 sets it
@@ -138,7 +129,7 @@ def test_the_worst_fuzz_cases_over_dds_leave_the_node_publishing_finite_poses_th
                  f"initial_pose.y:={start[1]}", "-p", f"initial_pose.yaw:={start[2]}"]
     node = Process(f"robot_localization_suite.nodes.{name}", "--ros-args", *args)
     manager = LifecycleManager([node_name], domain_id=ros_domain_id, log=lambda _line: None)
-    robot = Robot(rclpy, node_name)
+    robot = Robot(node_name)
     try:
         robot.publishers["map"].publish(robot.world.map_msg)
         assert manager.startup(180.0), node.text()

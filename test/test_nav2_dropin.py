@@ -12,7 +12,6 @@ import math
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +20,7 @@ import yaml
 
 from robot_localization_suite.core.se2 import angle_difference, compose
 from robot_localization_suite.launch.lifecycle import LifecycleManager
+from robot_localization_suite.ros.context_node import ContextNode
 from robot_localization_suite.ros.conversions import initial_pose_to_msg, odometry_from_msg
 from robot_localization_suite.ros.qos import POSE_QOS, RELIABLE_QOS, TF_QOS, TF_STATIC_QOS
 from robot_localization_suite.ros.tf import TFMessage, transform_from_msg
@@ -64,21 +64,14 @@ def write_world(folder: Path) -> tuple[Path, Path]:
     return scenario_path, params_path
 
 
-class Listener:
+class Listener(ContextNode):
     """What a tf2 listener, RViz and nav2 see: /tf, the pose (transient local), ground truth."""
 
     def __init__(self) -> None:
-        import rclpy
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
 
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("nav2_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__("nav2_probe")
         self.map_odom: list[tuple[float, np.ndarray, float]] = []  # (stamp, transform, wall time received)
         self.odom_base: dict[float, np.ndarray] = {}
         self.static: list = []
@@ -103,16 +96,6 @@ class Listener:
         stamp, pose = odometry_from_msg(msg)
         self.truth[round(stamp, 6)] = pose
 
-    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
-            if done():
-                return True
-        return False
-
-    def spin_for(self, seconds: float) -> None:
-        self.spin_until(lambda: False, seconds)
 
     def errors(self, tolerance: float, after: float = -math.inf) -> list[tuple[float, float]]:
         """(position [m], heading [rad]) error of map -> odom (+) odom -> base_link at each scan's stamp."""
@@ -147,11 +130,6 @@ class Listener:
         assert client.wait_for_service(timeout_sec=10.0)
         future = client.call_async(SetInitialPose.Request(pose=pose))
         assert self.spin_until(future.done, 10.0)
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.rclpy.shutdown(context=self.context)
 
 
 @pytest.fixture(scope="module")

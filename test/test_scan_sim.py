@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from robot_localization_suite.core.sim.settings import ScanSimSettings, build_sc
 from robot_localization_suite.core.sim.simulator import Simulator
 from robot_localization_suite.nodes import scan_sim
 from robot_localization_suite.ros.bag import read_bag
+from robot_localization_suite.ros.context_node import ContextNode
 
 ROOT = Path(__file__).resolve().parent.parent
 KIDNAP_BAGS = ("office_kidnap", "floor_kidnap", "corridor_kidnap")
@@ -79,36 +79,16 @@ def stop(process: subprocess.Popen) -> str:
     return output
 
 
-class Probe:
+class Probe(ContextNode):
     """A subscriber node in its own rclpy context."""
 
     def __init__(self) -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("scan_sim_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__("scan_sim_probe")
         self.received: dict[str, list] = {}
 
     def subscribe(self, msg_type: type, topic: str, qos) -> None:
         self.node.create_subscription(msg_type, topic, lambda msg: self.received.setdefault(topic, []).append(msg), qos)
 
-    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
-            if done():
-                return True
-        return False
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.rclpy.shutdown(context=self.context)
 
 
 @pytest.fixture

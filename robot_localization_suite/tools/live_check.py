@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core import metrics
 from ..launch.dds import use_loopback
+from ..ros.context_node import ContextNode
 
 __all__ = ["LiveResult", "NodeProcess", "Probe", "live_runs", "main", "record_scenario", "replay_rate", "startup_time"]
 
@@ -86,26 +87,18 @@ class NodeProcess:
             self.process.wait(timeout=15)
 
 
-class Probe:
+class Probe(ContextNode):
     """What a tf2 listener and RViz see of one localizer: its ``~/pose``, ``map -> odom``, ground truth, odometry."""
 
     def __init__(self, node_names: Sequence[str]) -> None:
-        import rclpy
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from rclpy.signals import SignalHandlerOptions
 
         from ..ros.qos import TF_QOS
         from ..ros.tf import TFMessage
 
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node("rls_live_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__("rls_live_probe")
         self.poses: dict[str, list[tuple[float, np.ndarray]]] = {name: [] for name in node_names}
         self.first_tf_at: float | None = None  # monotonic time of the first map -> odom
         self.truth: list[tuple[float, np.ndarray]] = []
@@ -141,19 +134,6 @@ class Probe:
             (t.header.frame_id.lstrip("/"), t.child_frame_id.lstrip("/")) == ("map", "odom") for t in msg.transforms
         ):
             self.first_tf_at = time.monotonic()
-
-    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
-            if done():
-                return True
-        return False
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.rclpy.shutdown(context=self.context)
 
 
 def _trajectory(samples: Sequence[tuple[float, np.ndarray]]) -> metrics.Trajectory:
