@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.se2 import quaternion_to_yaw
 from robot_localization_suite.core.sim.scenario_yaml import load_scenario
 from robot_localization_suite.core.sim.settings import ScanSimSettings, build_scenario
@@ -358,3 +358,101 @@ def test_committed_bags_match_their_scenarios(name: str) -> None:
     for _ in range(30):
         step = simulator.step()
         assert np.array_equal(np.asarray(next(scans).msg.ranges, dtype=np.float32), step.ranges)
+
+
+# -- world events: a map change and a reinitialization request ------------------------------------------
+def write_world_with_events(folder: Path, *, duration: float = 8.0) -> Path:
+    """The room of :func:`write_world` whose pillar moves at 2 s (map change) and a reinitialization at 4 s."""
+    path = write_world(folder, duration=duration, camera=False)
+    data = np.zeros((80, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[50:60, 80:90] = 100  # the pillar moved 1 m north: x 4.0..4.5, y 2.5..3.0
+    GridMap(data, 0.05, (0.0, 0.0)).save(folder / "room_moved.yaml")
+    scenario = yaml.safe_load(path.read_text())
+    scenario["kidnappings"] = []  # the kidnap pose (2, 3) would be next to the moved pillar; not needed here
+    scenario["map_changes"] = [{"time": 2.0, "map": "room_moved.yaml"}]
+    scenario["reinitializations"] = [{"time": 4.0}]
+    path.write_text(yaml.safe_dump(scenario))
+    return path
+
+
+def test_record_writes_the_new_map_and_the_reinitialization_request_at_their_step(tmp_path: Path) -> None:
+    scenario_path = write_world_with_events(tmp_path, duration=5.0)
+    bag = tmp_path / "bag"
+    assert scan_sim.main(["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={scenario_path}"]) == 0
+    messages = list(read_bag(bag))
+    maps = [m for m in messages if m.topic == "/map"]
+    assert [m.stamp_ns for m in maps] == [0, 2_000_000_000]
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+    assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(80, 120), moved)
+    assert maps[1].msg.header.stamp.sec == 2 and maps[1].msg.header.frame_id == "map"
+    (request,) = [m for m in messages if m.topic == "/operator/reinitialize_global_localization"]
+    assert request.stamp_ns == 4_000_000_000
+    assert (request.msg.stamp.sec, request.msg.stamp.nanosec, request.msg.frame_id) == (4, 0, "map")
+    # Each event comes before the scan of its step, the first scan that sees the changed world.
+    topics = [m.topic for m in messages]
+    step_20 = [m.topic for m in messages if m.stamp_ns == 2_000_000_000]
+    assert step_20.index("/map") < step_20.index("/scan")
+    step_40 = [m.topic for m in messages if m.stamp_ns == 4_000_000_000]
+    assert step_40.index("/operator/reinitialize_global_localization") < step_40.index("/scan")
+    assert topics.count("/scan") == 51
+
+
+def test_live_scan_sim_publishes_the_new_map_and_calls_every_reinitialization_service(
+    tmp_path: Path, probe: Probe
+) -> None:
+    from nav_msgs.msg import OccupancyGrid
+    from std_msgs.msg import Header
+    from std_srvs.srv import Empty
+
+    from robot_localization_suite.ros.qos import MAP_QOS, RELIABLE_QOS
+
+    calls: list[str] = []
+
+    def served(name: str):
+        def handle(request: Empty.Request, response: Empty.Response) -> Empty.Response:
+            calls.append(name)
+            return response
+        return handle
+
+    for name in ("fake_mcl", "fake_pil"):
+        probe.node.create_service(Empty, f"{name}/reinitialize_global_localization", served(name))
+    probe.subscribe(OccupancyGrid, "map", MAP_QOS)
+    probe.subscribe(Header, "operator/reinitialize_global_localization", RELIABLE_QOS)
+    scenario_path = write_world_with_events(tmp_path, duration=6.0)
+    process = start_scan_sim("-p", f"scenario:={scenario_path}")
+    try:
+        ok = probe.spin_until(lambda: len(probe.received.get("map", [])) >= 2 and len(calls) >= 2, timeout=40.0)
+        assert ok, f"maps {len(probe.received.get('map', []))}, calls {calls}; node output:\n{stop(process)}"
+        probe.spin_for(0.5)
+    finally:
+        output = stop(process)
+    assert sorted(calls) == ["fake_mcl", "fake_pil"]  # once each
+    first, second = probe.received["map"][:2]
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+    assert np.array_equal(np.asarray(second.data, dtype=np.int8).reshape(80, 120), moved)
+    assert not np.array_equal(np.asarray(first.data, dtype=np.int8).reshape(80, 120), moved)
+    assert len(probe.received["operator/reinitialize_global_localization"]) == 1
+    assert "the map changed at t = 2.0 s" in output
+    assert "/fake_mcl/reinitialize_global_localization" in output and "/fake_pil/reinitialize_global_localization" in output
+
+
+def test_a_late_subscriber_gets_the_changed_map(tmp_path: Path, probe: Probe) -> None:
+    """/map is transient local with depth 1: a node started after the change gets the new map only."""
+    from nav_msgs.msg import OccupancyGrid
+
+    from robot_localization_suite.ros.qos import MAP_QOS
+
+    scenario_path = write_world_with_events(tmp_path, duration=30.0)
+    process = start_scan_sim("-p", f"scenario:={scenario_path}")
+    try:
+        time.sleep(5.0)  # past the change at 2 s
+        probe.subscribe(OccupancyGrid, "map", MAP_QOS)
+        ok = probe.spin_until(lambda: len(probe.received.get("map", [])) >= 1, timeout=20.0)
+        assert ok, f"no map; node output:\n{stop(process)}"
+        probe.spin_for(0.5)
+    finally:
+        stop(process)
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+    maps = probe.received["map"]
+    assert len(maps) == 1 and np.array_equal(np.asarray(maps[0].data, dtype=np.int8).reshape(80, 120), moved)
