@@ -456,3 +456,26 @@ def test_a_late_subscriber_gets_the_changed_map(tmp_path: Path, probe: Probe) ->
     moved = load_map_yaml(tmp_path / "room_moved.yaml").data
     maps = probe.received["map"]
     assert len(maps) == 1 and np.array_equal(np.asarray(maps[0].data, dtype=np.int8).reshape(80, 120), moved)
+
+
+def test_the_committed_map_change_bag_matches_its_scenario() -> None:
+    """bags/office_mapchange: both events where the scenario puts them, every scan what the simulator makes now."""
+    from rosbags.rosbag2 import Reader
+
+    bag = ROOT / "bags" / "office_mapchange"
+    assert sum(p.stat().st_size for p in bag.iterdir()) <= 4_000_000
+    scenario = load_scenario(ROOT / "config" / "scenarios" / "office_mapchange.yaml")
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    steps = scenario.step_count
+    assert counts == {"/map": 2, "/tf_static": 1, "/odom": steps, "/tf": steps, "/ground_truth": steps, "/scan": steps,
+                      "/operator/reinitialize_global_localization": 1}
+    change, request = scenario.map_changes[0], scenario.reinitializations[0]
+    maps = [m for m in read_bag(bag, ["/map"])]
+    assert [m.stamp_ns for m in maps] == [0, scenario.event_step(change.time) * 100_000_000]
+    assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(400, 400), change.grid_map.data)
+    (item,) = read_bag(bag, ["/operator/reinitialize_global_localization"])
+    assert item.stamp_ns == scenario.event_step(request.time) * 100_000_000
+    simulator = Simulator(scenario)
+    for message, step in zip(read_bag(bag, ["/scan"]), simulator.run(), strict=True):
+        assert np.array_equal(np.asarray(message.msg.ranges, dtype=np.float32), step.ranges)
