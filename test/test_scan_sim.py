@@ -361,8 +361,10 @@ def test_committed_bags_match_their_scenarios(name: str) -> None:
 
 
 # -- world events: a map change and a reinitialization request ------------------------------------------
-def write_world_with_events(folder: Path, *, duration: float = 8.0) -> Path:
-    """The room of :func:`write_world` whose pillar moves at 2 s (map change) and a reinitialization at 4 s."""
+def write_world_with_events(folder: Path, *, duration: float = 8.0, change_at: float = 2.0,
+                            reinitialize_at: float = 4.0) -> Path:
+    """The room of :func:`write_world` whose pillar moves at ``change_at`` (map change), and a reinitialization
+    request at ``reinitialize_at`` [s]."""
     path = write_world(folder, duration=duration, camera=False)
     data = np.zeros((80, 120), dtype=np.int8)
     data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
@@ -370,8 +372,8 @@ def write_world_with_events(folder: Path, *, duration: float = 8.0) -> Path:
     GridMap(data, 0.05, (0.0, 0.0)).save(folder / "room_moved.yaml")
     scenario = yaml.safe_load(path.read_text())
     scenario["kidnappings"] = []  # the kidnap pose (2, 3) would be next to the moved pillar; not needed here
-    scenario["map_changes"] = [{"time": 2.0, "map": "room_moved.yaml"}]
-    scenario["reinitializations"] = [{"time": 4.0}]
+    scenario["map_changes"] = [{"time": change_at, "map": "room_moved.yaml"}]
+    scenario["reinitializations"] = [{"time": reinitialize_at}]
     path.write_text(yaml.safe_dump(scenario))
     return path
 
@@ -419,21 +421,28 @@ def test_live_scan_sim_publishes_the_new_map_and_calls_every_reinitialization_se
         probe.node.create_service(Empty, f"{name}/reinitialize_global_localization", served(name))
     probe.subscribe(OccupancyGrid, "map", MAP_QOS)
     probe.subscribe(Header, "operator/reinitialize_global_localization", RELIABLE_QOS)
-    scenario_path = write_world_with_events(tmp_path, duration=6.0)
+    # Late events: discovery on a loaded machine may take seconds, and the services must be known by then.
+    scenario_path = write_world_with_events(tmp_path, duration=10.0, change_at=6.0, reinitialize_at=8.0)
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+
+    def grids() -> list[np.ndarray]:
+        return [np.asarray(m.data, dtype=np.int8).reshape(80, 120) for m in probe.received.get("map", [])]
+
     process = start_scan_sim("-p", f"scenario:={scenario_path}")
     try:
-        ok = probe.spin_until(lambda: len(probe.received.get("map", [])) >= 2 and len(calls) >= 2, timeout=40.0)
-        assert ok, f"maps {len(probe.received.get('map', []))}, calls {calls}; node output:\n{stop(process)}"
+        ok = probe.spin_until(lambda: any(np.array_equal(g, moved) for g in grids()) and len(calls) >= 2,
+                              timeout=60.0)
+        assert ok, f"maps {len(grids())}, calls {calls}; node output:\n{stop(process)}"
         probe.spin_for(0.5)
     finally:
         output = stop(process)
     assert sorted(calls) == ["fake_mcl", "fake_pil"]  # once each
-    first, second = probe.received["map"][:2]
-    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
-    assert np.array_equal(np.asarray(second.data, dtype=np.int8).reshape(80, 120), moved)
-    assert not np.array_equal(np.asarray(first.data, dtype=np.int8).reshape(80, 120), moved)
+    # The changed map is the last one; one received before it (depth 1: only if discovery was quick) is the first.
+    *before, last = grids()
+    assert np.array_equal(last, moved)
+    assert all(not np.array_equal(g, moved) for g in before) and len(before) <= 1
     assert len(probe.received["operator/reinitialize_global_localization"]) == 1
-    assert "the map changed at t = 2.0 s" in output
+    assert "the map changed at t = 6.0 s" in output
     assert "/fake_mcl/reinitialize_global_localization" in output and "/fake_pil/reinitialize_global_localization" in output
 
 
@@ -446,7 +455,13 @@ def test_a_late_subscriber_gets_the_changed_map(tmp_path: Path, probe: Probe) ->
     scenario_path = write_world_with_events(tmp_path, duration=30.0)
     process = start_scan_sim("-p", f"scenario:={scenario_path}")
     try:
-        time.sleep(5.0)  # past the change at 2 s
+        assert process.stdout is not None
+        for line in process.stdout:  # ends when the node exits (30 s): bounded
+            if "the map changed at t = 2.0 s" in line:
+                break
+        else:
+            raise AssertionError(f"scan_sim never changed the map:\n{stop(process)}")
+        time.sleep(0.5)  # the publication itself follows the log line
         probe.subscribe(OccupancyGrid, "map", MAP_QOS)
         ok = probe.spin_until(lambda: len(probe.received.get("map", [])) >= 1, timeout=20.0)
         assert ok, f"no map; node output:\n{stop(process)}"
