@@ -53,8 +53,15 @@ def true_trajectory(stamps: np.ndarray, kidnap: bool) -> tuple[np.ndarray, np.nd
     return truth, odom
 
 
-def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap: bool = True, duration: float = 20.0):
+def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap: bool = True, duration: float = 20.0,
+              map_change_at: float | None = None, reinitialize_at: float | None = None):
+    """``map_change_at`` / ``reinitialize_at`` [s after the first scan]: a second /map (the pillar moved) and a
+    reinitialization request there, as ``scan_sim --record`` writes them (before that step's messages)."""
+    from std_msgs.msg import Header
+
     grid_map = room_map()
+    changed = room_map()
+    changed.data[60:80, 150:170], changed.data[100:120, 150:170] = 0, 100
     stamps = 100.0 + np.arange(0.0, duration + 1e-9, SCAN_PERIOD)
     truth, odom = true_trajectory(stamps, kidnap)
     angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
@@ -64,6 +71,11 @@ def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap:
             writer.write("/map", conversions.grid_map_to_msg(grid_map, stamps[0]), int(stamps[0] * 1e9) - 3000)
         for stamp, true_pose, odom_pose, scan in zip(stamps, truth, odom, ranges, strict=True):
             ns = int(round(stamp * 1e9))
+            if map_change_at is not None and abs(stamp - stamps[0] - map_change_at) < 1e-6:
+                writer.write("/map", conversions.grid_map_to_msg(changed, stamp), ns - 3000)
+            if reinitialize_at is not None and abs(stamp - stamps[0] - reinitialize_at) < 1e-6:
+                writer.write("/operator/reinitialize_global_localization",
+                             Header(stamp=conversions.seconds_to_stamp(stamp), frame_id="map"), ns - 2500)
             writer.write("/odom", conversions.odometry_to_msg(stamp, odom_pose, frame_id="odom"), ns - 2000)
             if truth_topic:
                 writer.write("/ground_truth", conversions.odometry_to_msg(stamp, true_pose, frame_id="map"), ns - 1000)
@@ -535,3 +547,73 @@ def test_an_override_naming_no_parameter_is_refused_before_anything_runs():
     with pytest.raises(SettingsError, match="mcl_baseline has no parameter 'alpha_1'"):
         bench.registry_spec("mcl_baseline", {"alpha_1": 0.1})
     assert bench.registry_spec("mcl_baseline", {"alpha1": 0.1, "laser_x": 0.2}).mount.x == 0.2
+
+
+# -- world events: a map change and a reinitialization request mid-bag ---------------------------------
+class EventEcho(EchoLocalizer):
+    """The echo double that notes when it got each map and each reinitialization (after which scan stamp)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.last_scan = -np.inf
+        self.maps: list[tuple[float, GridMap]] = []
+        self.reinitializations: list[float] = []
+
+    def set_map(self, grid_map) -> None:
+        super().set_map(grid_map)
+        self.maps.append((self.last_scan, grid_map))
+
+    def reinitialize(self) -> None:
+        self.reinitializations.append(self.last_scan)
+
+    def on_scan(self, scan):
+        self.last_scan = scan.stamp
+        return super().on_scan(scan)
+
+
+def wrong_for_a_second_after_the_map_change(stamp: float) -> tuple[float, float, float]:
+    return (0.0, 3.0, 0.0) if 105.0 - 1e-9 <= stamp < 106.0 - 1e-9 else (0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("mode", ["global", "tracking"])
+def test_the_replay_applies_a_map_change_and_a_reinitialization_where_the_bag_has_them(tmp_path, mode):
+    from robot_localization_suite.tools.bench import replay as bench_replay
+    from robot_localization_suite.tools.bench.reference import load_reference
+
+    path = tmp_path / "room_events"
+    stamps, truth_poses = write_bag(path, kidnap=False, map_change_at=5.0, reinitialize_at=12.0)
+    truth = metrics.Trajectory(stamps, truth_poses)
+    made: list[EventEcho] = []
+
+    def factory() -> EventEcho:
+        made.append(EventEcho(truth, wrong_for_a_second_after_the_map_change))
+        return made[-1]
+
+    reference = load_reference(path)
+    assert reference.map_change_stamps.tolist() == [pytest.approx(105.0, abs=1e-5)]
+    assert reference.reinitialize_stamps.tolist() == [pytest.approx(112.0, abs=1e-5)]
+    assert np.array_equal(reference.map_msg_grid.data, room_map().data)  # the bag's map is its first /map
+    spec = bench.LocalizerSpec("echo", factory)
+    record = bench_replay.replay_localizer(reference, spec, reference.map_msg_grid, mode=mode, sample_rss=False)
+    (localizer,) = made
+    # The first map before any scan, the changed one between the scans at 104.9 s and 105.0 s.
+    assert [after for after, _ in localizer.maps] == [-np.inf, pytest.approx(104.9)]
+    assert localizer.maps[1][1].data[110, 160] == 100 and localizer.maps[1][1].data[70, 160] == 0
+    assert localizer.reinitializations == [pytest.approx(111.9)]
+    assert record.stamps.size == 201
+
+    # The summary: how many events, and LOCALIZED honesty from each event to the next.
+    summary = bench.run_benchmark([path], [bench.LocalizerSpec("echo", factory)], tmp_path / "out", isolate=False,
+                                  plots=False, mode=mode)
+    fields = summary["room_events"]["echo"]
+    assert (fields["map_changes"], fields["reinitializations"], fields["kidnappings"]) == (1, 1, 0)
+    after_change, after_request = fields["after_events"]
+    assert after_change["event"] == "map_change" and after_change["time_s"] == pytest.approx(105.0)
+    assert after_change["outputs"] == 70 and after_change["localized_outputs"] == 70
+    assert after_change["false_localized_rate"] == pytest.approx(10 / 70, abs=1e-4)
+    assert after_change["correct_rate"] == pytest.approx(60 / 70, abs=1e-4)
+    assert after_request["event"] == "reinitialization" and after_request["outputs"] == 81
+    assert after_request["false_localized_rate"] == 0.0
+    assert fields["false_localized_rate"] == pytest.approx(10 / 201, abs=1e-4)
+    table = (tmp_path / "out" / "summary.md").read_text()
+    assert "after the map change at 105 s: correct 0.857, LOCALIZED 1, false LOCALIZED 0.143" in table

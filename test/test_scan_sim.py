@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.se2 import quaternion_to_yaw
 from robot_localization_suite.core.sim.scenario_yaml import load_scenario
 from robot_localization_suite.core.sim.settings import ScanSimSettings, build_scenario
@@ -358,3 +358,139 @@ def test_committed_bags_match_their_scenarios(name: str) -> None:
     for _ in range(30):
         step = simulator.step()
         assert np.array_equal(np.asarray(next(scans).msg.ranges, dtype=np.float32), step.ranges)
+
+
+# -- world events: a map change and a reinitialization request ------------------------------------------
+def write_world_with_events(folder: Path, *, duration: float = 8.0, change_at: float = 2.0,
+                            reinitialize_at: float = 4.0) -> Path:
+    """The room of :func:`write_world` whose pillar moves at ``change_at`` (map change), and a reinitialization
+    request at ``reinitialize_at`` [s]."""
+    path = write_world(folder, duration=duration, camera=False)
+    data = np.zeros((80, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    data[50:60, 80:90] = 100  # the pillar moved 1 m north: x 4.0..4.5, y 2.5..3.0
+    GridMap(data, 0.05, (0.0, 0.0)).save(folder / "room_moved.yaml")
+    scenario = yaml.safe_load(path.read_text())
+    scenario["kidnappings"] = []  # the kidnap pose (2, 3) would be next to the moved pillar; not needed here
+    scenario["map_changes"] = [{"time": change_at, "map": "room_moved.yaml"}]
+    scenario["reinitializations"] = [{"time": reinitialize_at}]
+    path.write_text(yaml.safe_dump(scenario))
+    return path
+
+
+def test_record_writes_the_new_map_and_the_reinitialization_request_at_their_step(tmp_path: Path) -> None:
+    scenario_path = write_world_with_events(tmp_path, duration=5.0)
+    bag = tmp_path / "bag"
+    assert scan_sim.main(["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={scenario_path}"]) == 0
+    messages = list(read_bag(bag))
+    maps = [m for m in messages if m.topic == "/map"]
+    assert [m.stamp_ns for m in maps] == [0, 2_000_000_000]
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+    assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(80, 120), moved)
+    assert maps[1].msg.header.stamp.sec == 2 and maps[1].msg.header.frame_id == "map"
+    (request,) = [m for m in messages if m.topic == "/operator/reinitialize_global_localization"]
+    assert request.stamp_ns == 4_000_000_000
+    assert (request.msg.stamp.sec, request.msg.stamp.nanosec, request.msg.frame_id) == (4, 0, "map")
+    # Each event comes before the scan of its step, the first scan that sees the changed world.
+    topics = [m.topic for m in messages]
+    step_20 = [m.topic for m in messages if m.stamp_ns == 2_000_000_000]
+    assert step_20.index("/map") < step_20.index("/scan")
+    step_40 = [m.topic for m in messages if m.stamp_ns == 4_000_000_000]
+    assert step_40.index("/operator/reinitialize_global_localization") < step_40.index("/scan")
+    assert topics.count("/scan") == 51
+
+
+def test_live_scan_sim_publishes_the_new_map_and_calls_every_reinitialization_service(
+    tmp_path: Path, probe: Probe
+) -> None:
+    from nav_msgs.msg import OccupancyGrid
+    from std_msgs.msg import Header
+    from std_srvs.srv import Empty
+
+    from robot_localization_suite.ros.qos import MAP_QOS, RELIABLE_QOS
+
+    calls: list[str] = []
+
+    def served(name: str):
+        def handle(request: Empty.Request, response: Empty.Response) -> Empty.Response:
+            calls.append(name)
+            return response
+        return handle
+
+    for name in ("fake_mcl", "fake_pil"):
+        probe.node.create_service(Empty, f"{name}/reinitialize_global_localization", served(name))
+    probe.subscribe(OccupancyGrid, "map", MAP_QOS)
+    probe.subscribe(Header, "operator/reinitialize_global_localization", RELIABLE_QOS)
+    # Late events: discovery on a loaded machine may take seconds, and the services must be known by then.
+    scenario_path = write_world_with_events(tmp_path, duration=10.0, change_at=6.0, reinitialize_at=8.0)
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+
+    def grids() -> list[np.ndarray]:
+        return [np.asarray(m.data, dtype=np.int8).reshape(80, 120) for m in probe.received.get("map", [])]
+
+    process = start_scan_sim("-p", f"scenario:={scenario_path}")
+    try:
+        ok = probe.spin_until(lambda: any(np.array_equal(g, moved) for g in grids()) and len(calls) >= 2,
+                              timeout=60.0)
+        assert ok, f"maps {len(grids())}, calls {calls}; node output:\n{stop(process)}"
+        probe.spin_for(0.5)
+    finally:
+        output = stop(process)
+    assert sorted(calls) == ["fake_mcl", "fake_pil"]  # once each
+    # The changed map is the last one; one received before it (depth 1: only if discovery was quick) is the first.
+    *before, last = grids()
+    assert np.array_equal(last, moved)
+    assert all(not np.array_equal(g, moved) for g in before) and len(before) <= 1
+    assert len(probe.received["operator/reinitialize_global_localization"]) == 1
+    assert "the map changed at t = 6.0 s" in output
+    assert "/fake_mcl/reinitialize_global_localization" in output and "/fake_pil/reinitialize_global_localization" in output
+
+
+def test_a_late_subscriber_gets_the_changed_map(tmp_path: Path, probe: Probe) -> None:
+    """/map is transient local with depth 1: a node started after the change gets the new map only."""
+    from nav_msgs.msg import OccupancyGrid
+
+    from robot_localization_suite.ros.qos import MAP_QOS
+
+    scenario_path = write_world_with_events(tmp_path, duration=30.0)
+    process = start_scan_sim("-p", f"scenario:={scenario_path}")
+    try:
+        assert process.stdout is not None
+        for line in process.stdout:  # ends when the node exits (30 s): bounded
+            if "the map changed at t = 2.0 s" in line:
+                break
+        else:
+            raise AssertionError(f"scan_sim never changed the map:\n{stop(process)}")
+        time.sleep(0.5)  # the publication itself follows the log line
+        probe.subscribe(OccupancyGrid, "map", MAP_QOS)
+        ok = probe.spin_until(lambda: len(probe.received.get("map", [])) >= 1, timeout=20.0)
+        assert ok, f"no map; node output:\n{stop(process)}"
+        probe.spin_for(0.5)
+    finally:
+        stop(process)
+    moved = load_map_yaml(tmp_path / "room_moved.yaml").data
+    maps = probe.received["map"]
+    assert len(maps) == 1 and np.array_equal(np.asarray(maps[0].data, dtype=np.int8).reshape(80, 120), moved)
+
+
+def test_the_committed_map_change_bag_matches_its_scenario() -> None:
+    """bags/office_mapchange: both events where the scenario puts them, every scan what the simulator makes now."""
+    from rosbags.rosbag2 import Reader
+
+    bag = ROOT / "bags" / "office_mapchange"
+    assert sum(p.stat().st_size for p in bag.iterdir()) <= 4_000_000
+    scenario = load_scenario(ROOT / "config" / "scenarios" / "office_mapchange.yaml")
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    steps = scenario.step_count
+    assert counts == {"/map": 2, "/tf_static": 1, "/odom": steps, "/tf": steps, "/ground_truth": steps, "/scan": steps,
+                      "/operator/reinitialize_global_localization": 1}
+    change, request = scenario.map_changes[0], scenario.reinitializations[0]
+    maps = [m for m in read_bag(bag, ["/map"])]
+    assert [m.stamp_ns for m in maps] == [0, scenario.event_step(change.time) * 100_000_000]
+    assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(400, 400), change.grid_map.data)
+    (item,) = read_bag(bag, ["/operator/reinitialize_global_localization"])
+    assert item.stamp_ns == scenario.event_step(request.time) * 100_000_000
+    simulator = Simulator(scenario)
+    for message, step in zip(read_bag(bag, ["/scan"]), simulator.run(), strict=True):
+        assert np.array_equal(np.asarray(message.msg.ranges, dtype=np.float32), step.ranges)

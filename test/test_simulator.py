@@ -22,9 +22,11 @@ from robot_localization_suite.core.se2 import angle_difference, relative
 from robot_localization_suite.core.sim.config import (
     Kidnapping,
     LaserConfig,
+    MapChange,
     MotionPlan,
     OdometryConfig,
     Person,
+    Reinitialization,
     VelocitySegment,
 )
 from robot_localization_suite.core.sim.scenario import Scenario
@@ -398,3 +400,76 @@ def test_ambiguous_kidnap_targets_look_alike(name: str, original, twin, max_chan
         same = (np.isinf(a) & np.isinf(b)) | (np.abs(a - b) <= 0.1)
     changed = ~same
     assert changed.mean() <= max_changed
+
+
+# -- world events: map changes and reinitialization requests ---------------------------------------
+def changed_room_map() -> GridMap:
+    """The room with a 0.5 m box at x 2.5..3.0, y 1.25..1.75 (right in front of the start pose)."""
+    data = room_map().data.copy()
+    data[25:35, 50:60] = 100
+    return GridMap(data, RES, (0.0, 0.0))
+
+
+def test_a_map_change_switches_the_sensed_map_at_its_step_and_a_reinitialization_is_flagged() -> None:
+    changed = changed_room_map()
+    standing = MotionPlan(segments=(VelocitySegment(0.0, 0.0, 2.0),))
+    scenario = segments_scenario(motion=standing, map_changes=(MapChange(0.95, changed, "changed.yaml"),),
+                                 reinitializations=(Reinitialization(1.5),))
+    simulator = Simulator(scenario, seed=1)
+    steps = list(simulator.run())
+    assert [s.index for s in steps if s.new_map is not None] == [10]  # the first step at or after 0.95 s
+    assert steps[10].new_map is changed and simulator.grid_map is changed
+    assert [s.index for s in steps if s.reinitialize] == [15]
+    # Noiseless laser facing east from (1.0, 1.5): 3.05 m to the wall before, 1.5 m to the box from step 10.
+    ahead = int(np.argmin(np.abs(scenario.laser.angles)))
+    before, after = steps[9].ranges[ahead], steps[10].ranges[ahead]
+    assert before == pytest.approx(X1 - 1.0, abs=0.03) and after == pytest.approx(1.5, abs=0.03)
+    expected = RayCaster(changed, max_range=scenario.laser.range_max).cast(steps[12].laser_pose, scenario.laser.angles)
+    finite = np.isfinite(expected)
+    assert np.allclose(steps[12].ranges[finite], expected[finite], atol=1e-4)
+    assert scenario.map_at(0.9) is scenario.grid_map and scenario.map_at(0.95) is changed
+
+
+@pytest.mark.parametrize(
+    ("events", "message"),
+    [
+        ({"map_changes": [{"time": -1.0, "map": "changed.yaml"}]}, r"map_changes\[0\]\.time must be >= 0, got -1"),
+        ({"map_changes": [{"time": 1.0, "map": "nowhere.yaml"}]}, r"map_changes\[0\]\.map 'nowhere\.yaml'.*does not exist"),
+        ({"map_changes": [{"time": 1.0}]}, r"map_changes\[0\] needs 'time' and 'map'"),
+        ({"map_changes": [{"time": 1.0, "map": "coarse.yaml"}]}, r"map_changes\[0\]\.map coarse\.yaml has resolution 0\.1"),
+        ({"map_changes": [{"time": 1.0, "map": "shifted.yaml"}]}, r"map_changes\[0\]\.map shifted\.yaml has origin"),
+        ({"map_changes": [{"time": 0.95, "map": "changed.yaml"}, {"time": 1.0, "map": "changed.yaml"}]},
+         r"map_changes\[1\]\.time 1\.0 s must be at least one laser step after"),
+        ({"map_changes": [{"time": 9.0, "map": "changed.yaml"}]}, r"map_changes\[0\]\.time 9\.0 s is after the scenario end"),
+        # The robot drives east from (1.0, 1.5) at 0.5 m/s: the box appears in its way at 1 s.
+        ({"map_changes": [{"time": 1.0, "map": "changed.yaml"}], "start": [1.0, 1.5, 0.0],
+          "motion": {"segments": [{"v": 0.5, "w": 0.0, "duration": 4.0}]}},
+         r"the robot path reaches .* from an obstacle of map_changes\[0\] \(changed\.yaml\)"),
+        ({"reinitializations": [{"time": -0.5}]}, r"reinitializations\[0\]\.time must be >= 0, got -0\.5"),
+        ({"reinitializations": [{"time": 2.0}, {"time": 1.0}]}, r"reinitializations\[1\]\.time 1\.0 s is before the previous"),
+        ({"reinitializations": [{"time": 9.0}]}, r"reinitializations\[0\]\.time 9\.0 s is after the scenario end"),
+        ({"reinitializations": [{"when": 1.0}]}, r"reinitializations\[0\] has unknown key\(s\) \['when'\]"),
+    ],
+)
+def test_bad_world_events_are_refused_naming_the_value(tmp_path: Path, events: dict, message: str) -> None:
+    room_map().save(tmp_path / "room.yaml")
+    changed_room_map().save(tmp_path / "changed.yaml")
+    GridMap(room_map().data[::2, ::2].copy(), 0.1, (0.0, 0.0)).save(tmp_path / "coarse.yaml")
+    GridMap(room_map().data, RES, (0.5, 0.0)).save(tmp_path / "shifted.yaml")
+    data = {"map": "room.yaml", "start": [1.0, 2.5, 0.0], "motion": {"segments": [{"v": 0.0, "w": 0.0, "duration": 3.0}]},
+            **events}
+    with pytest.raises(ScenarioError, match=message):
+        scenario_from_dict(data, tmp_path)
+
+
+def test_the_map_change_scenario_meets_its_brief() -> None:
+    """office_mapchange: a changed office, a map change while moving and a reinitialization in the twin office."""
+    scenario = load_scenario(ROOT / "config" / "scenarios" / "office_mapchange.yaml")
+    assert [c.path for c in scenario.map_changes] == ["../maps/office_changed.yaml"]
+    changed = scenario.map_changes[0].grid_map
+    assert np.array_equal(changed.data, MAP_BUILDERS["office_changed"](0.05).data)
+    assert 1000 < int((changed.data != scenario.grid_map.data).sum()) < 5000  # a changed building, not another one
+    trajectory = scenario.trajectory
+    change, request = scenario.event_step(scenario.map_changes[0].time), scenario.event_step(scenario.reinitializations[0].time)
+    assert np.hypot(*(trajectory.poses[change + 1, :2] - trajectory.poses[change - 1, :2])) > 0.05  # moving
+    assert np.allclose(trajectory.poses[request], [6.6, 3.2, 0.0])  # waiting in the east twin office

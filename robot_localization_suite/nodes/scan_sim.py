@@ -3,7 +3,9 @@
 Live (default): steps the simulator on a timer at ``rate_hz * speed`` and publishes ``map``
 (reliable, transient local, once), ``scan``, ``odom``, ``ground_truth`` and
 ``camera/image_raw`` when the scenario has a camera, stamped with the node's start time plus
-the simulated time. With ``scenario`` the robot follows it and the node exits with code 0 at
+the simulated time. A scenario's map change publishes the new map on ``map`` (same QoS); its
+reinitialization request calls every ``*/reinitialize_global_localization`` service found and
+publishes the request on ``operator/reinitialize_global_localization`` (std_msgs/Header). With ``scenario`` the robot follows it and the node exits with code 0 at
 its end (``exit_at_end``); without, it drives on ``map_yaml`` by ``cmd_vel`` (bad commands
 clamped and logged, a stop after ``cmd_vel_timeout``).
 Record: ``scan_sim --record DIR --ros-args -p scenario:=FILE`` writes the whole scenario into an
@@ -37,11 +39,14 @@ DESCRIPTION = (
     "Simulated robot: publishes map, laser scans, wheel odometry, ground truth (and camera images) "
     "from a scenario or from cmd_vel; --record DIR writes a rosbag2 MCAP bag instead."
 )
-TOPICS = """  out: map (nav_msgs/OccupancyGrid, transient local), scan (sensor_msgs/LaserScan),
+TOPICS = """  out: map (nav_msgs/OccupancyGrid, transient local; again at a scenario's map change),
+       operator/reinitialize_global_localization (std_msgs/Header, a scenario's reinitialization request),
+       scan (sensor_msgs/LaserScan),
        odom (nav_msgs/Odometry), /tf (odom -> base), /tf_static (base -> laser, transient local),
        ground_truth (nav_msgs/Odometry in map),
        camera/image_raw (sensor_msgs/Image, when the scenario has a camera)
-  in:  cmd_vel (geometry_msgs/Twist, only without a scenario)"""
+  in:  cmd_vel (geometry_msgs/Twist, only without a scenario)
+  calls: */reinitialize_global_localization (std_srvs/Empty) of every node offering it, at a reinitialization"""
 
 
 def sanitize_command(
@@ -85,7 +90,10 @@ def _make_node(options: argparse.Namespace) -> Any:
     from nav_msgs.msg import OccupancyGrid, Odometry
     from rclpy.node import Node
     from sensor_msgs.msg import Image, LaserScan
+    from std_msgs.msg import Header
+    from std_srvs.srv import Empty
 
+    from ..core.sim.config import REINITIALIZE_TOPIC
     from ..ros.params import declare_settings, parameter_values
     from ..ros.qos import MAP_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
     from ..ros.sim_messages import StepMessages, make_simulator
@@ -115,7 +123,10 @@ def _make_node(options: argparse.Namespace) -> Any:
                 "scan": self.create_publisher(LaserScan, "scan", SENSOR_QOS),
                 "odom": self.create_publisher(Odometry, "odom", RELIABLE_QOS),
                 "ground_truth": self.create_publisher(Odometry, "ground_truth", RELIABLE_QOS),
+                "map": self.map_pub,
+                REINITIALIZE_TOPIC: self.create_publisher(Header, REINITIALIZE_TOPIC, RELIABLE_QOS),
             }
+            self._reinitialize_clients: dict[str, Any] = {}
             if scenario.camera is not None:
                 self.publishers_by_topic["camera/image_raw"] = self.create_publisher(
                     Image, "camera/image_raw", SENSOR_QOS
@@ -178,8 +189,25 @@ def _make_node(options: argparse.Namespace) -> Any:
                 )
             if step.kidnapped:
                 self.get_logger().info(f"kidnapped at t = {step.time:.1f} s to {np.round(step.true_pose, 2).tolist()}")
+            if step.new_map is not None:
+                self.get_logger().info(f"the map changed at t = {step.time:.1f} s: publishing it on "
+                                       f"{self.map_pub.topic_name}")
             for topic, msg in self.messages.step_messages(step):
                 self.publishers_by_topic[topic].publish(msg)
+            if step.reinitialize:
+                self._request_reinitialization(step.time)
+
+        def _request_reinitialization(self, time: float) -> None:
+            """The simulated operator: call every ``*/reinitialize_global_localization`` service there is."""
+            names = sorted(name for name, types in self.get_service_names_and_types()
+                           if name.endswith("/reinitialize_global_localization") and "std_srvs/srv/Empty" in types)
+            for name in names:
+                client = self._reinitialize_clients.get(name)
+                if client is None:
+                    client = self._reinitialize_clients[name] = self.create_client(Empty, name)
+                client.call_async(Empty.Request())
+            self.get_logger().info(f"reinitialization requested at t = {time:.1f} s: called "
+                                   + (", ".join(names) if names else "no service (none offers reinitialize_global_localization)"))
 
     return ScanSimNode()
 

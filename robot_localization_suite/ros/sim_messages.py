@@ -1,7 +1,8 @@
 """The simulator's steps as ROS messages, published live by ``scan_sim`` or written into a bag.
 
-:class:`StepMessages` builds the messages of one simulator step (odometry, as ``odom`` and as
-``odom -> base`` on ``/tf``, before the scan it belongs to) and the static ones (``base -> laser``
+:class:`StepMessages` builds the messages of one simulator step (a changed map on ``map`` and a
+reinitialization request on ``operator/reinitialize_global_localization`` first, then odometry, as
+``odom`` and as ``odom -> base`` on ``/tf``, before the scan it belongs to) and the static ones (``base -> laser``
 on ``/tf_static``, the scenario's laser mount); :func:`record` runs a whole scenario as fast as
 possible into an MCAP bag. Without tf2_msgs (:data:`.tf.TFMessage` None) there is no ``/tf``.
 """
@@ -15,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.grid_map import GridMap
+from ..core.sim.config import REINITIALIZE_TOPIC
 from ..core.sim.settings import ScanSimSettings, build_scenario
 from ..core.sim.simulator import SimulationStep, Simulator
 from . import conversions
@@ -47,10 +50,18 @@ class StepMessages:
     def stamp(self, step_time: float) -> float:
         return self.epoch + step_time * self.time_scale
 
-    def map_message(self) -> Any:
-        msg = conversions.grid_map_to_msg(self.simulator.grid_map, self.epoch)
+    def map_message(self, grid_map: GridMap | None = None, seconds: float | None = None) -> Any:
+        """``grid_map`` (default: the map sensed now) as an OccupancyGrid stamped ``seconds`` (default: the epoch)."""
+        grid = self.simulator.grid_map if grid_map is None else grid_map
+        msg = conversions.grid_map_to_msg(grid, self.epoch if seconds is None else seconds)
         msg.header.frame_id = self.settings.map_frame
         return msg
+
+    def reinitialize_message(self, seconds: float) -> Any:
+        """The record of a reinitialization request: a std_msgs/Header stamped at the request, in the map frame."""
+        from std_msgs.msg import Header
+
+        return Header(stamp=conversions.seconds_to_stamp(seconds), frame_id=self.settings.map_frame)
 
     def static_messages(self) -> list[tuple[str, Any]]:
         """``(topic, message)`` published once: ``base -> laser`` (the scenario's laser mount) on ``tf_static``."""
@@ -64,7 +75,13 @@ class StepMessages:
         """``(topic, message)`` of a step in publication order (odometry before the scan it belongs to)."""
         seconds = self.stamp(step.time)
         s = self.settings
+        events: list[tuple[str, Any]] = []
+        if step.new_map is not None:
+            events.append(("map", self.map_message(step.new_map, seconds)))
+        if step.reinitialize:
+            events.append((REINITIALIZE_TOPIC, self.reinitialize_message(seconds)))
         out = [
+            *events,
             ("odom", conversions.odometry_to_msg(seconds, step.odom_pose, frame_id=s.odom_frame,
                                                  child_frame_id=s.base_frame, velocity=step.odom_velocity)),
             *([("tf", tf_message([transform_to_msg(seconds, s.odom_frame, s.base_frame, step.odom_pose)]))]
@@ -125,5 +142,6 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
             + written)
     else:
         log(f"scan_sim: recorded {scenario.name!r} ({scenario.end_time:.1f} s simulated, "
-            f"{len(scenario.kidnappings)} kidnappings) into {str(bag_dir)!r} in {elapsed:.1f} s: " + written)
+            f"{len(scenario.kidnappings)} kidnappings, {len(scenario.map_changes)} map changes, "
+            f"{len(scenario.reinitializations)} reinitializations) into {str(bag_dir)!r} in {elapsed:.1f} s: " + written)
     return counts

@@ -3,7 +3,8 @@
     python -m robot_localization_suite.tools.make_maps [--out config/maps] [--resolution 0.05]
 
 Writes nav2 map_server trinary maps (``<name>.yaml`` + ``<name>.pgm``) with :meth:`GridMap.save`:
-``office`` (20 m x 20 m, with two identical offices side by side), ``floor`` (30 m x 11 m, the PIL
+``office`` (20 m x 20 m, with two identical offices side by side), ``office_changed`` (the same
+office later: two doors closed, furniture moved; a scenario's map change), ``floor`` (30 m x 11 m, the PIL
 paper's kidnapping floor, 002 section 3) and ``corridor`` (26 m x 4 m, the IAL paper's symmetric
 corridor, 004 section 4.3, broken by one cabinet). Their layout and why: docs/simulator.md, "Maps".
 """
@@ -18,7 +19,7 @@ import numpy as np
 
 from ..core.grid_map import GridMap
 
-__all__ = ["build_office", "build_floor", "build_corridor", "MAP_BUILDERS", "main"]
+__all__ = ["build_office", "build_office_changed", "build_floor", "build_corridor", "MAP_BUILDERS", "main"]
 
 OCCUPIED, FREE = 100, 0
 
@@ -76,6 +77,25 @@ def _twin_room(canvas: _Canvas, x0: float) -> None:
 
 def build_office(resolution: float = 0.05) -> GridMap:
     """20 m x 20 m office floor (see the module docstring)."""
+    return _office(resolution).grid_map()
+
+
+def build_office_changed(resolution: float = 0.05) -> GridMap:
+    """The office floor some days later (a map change, docs/simulator.md): the meeting room and kitchen
+    doors closed, the west desk island of the open plan 0.8 m further west, the corridor bench moved from
+    the east to the west end, a cabinet against the corridor wall between the twin offices' doors."""
+    c = _office(resolution)
+    c.box(5.5, 10.0, 6.4, 10.15)  # meeting room door closed
+    c.box(8.9, 10.0, 9.8, 10.15)  # kitchen door closed
+    c.clear(12.0, 4.8, 13.6, 6.2)
+    c.box(11.2, 4.8, 12.8, 6.2)  # desk island moved west
+    c.clear(13.5, 9.6, 15.0, 10.0)
+    c.box(3.5, 9.6, 5.0, 10.0)  # corridor bench moved west
+    c.box(6.0, 8.0, 7.2, 8.35)  # new cabinet in the corridor
+    return c.grid_map()
+
+
+def _office(resolution: float) -> _Canvas:
     c = _Canvas(20.0, 20.0, resolution)
     c.outer_walls(WALL)
     # Corridor y 8.0..10.0 across the whole floor.
@@ -115,7 +135,7 @@ def build_office(resolution: float = 0.05) -> GridMap:
     # Corridor details (asymmetric).
     c.box(2.2, 9.75, 3.0, 10.0)  # water fountain
     c.box(13.5, 9.6, 15.0, 10.0)  # bench
-    return c.grid_map()
+    return c
 
 
 def build_floor(resolution: float = 0.05) -> GridMap:
@@ -178,7 +198,7 @@ def build_corridor(resolution: float = 0.05) -> GridMap:
     return c.grid_map()
 
 
-MAP_BUILDERS = {"office": build_office, "floor": build_floor, "corridor": build_corridor}
+MAP_BUILDERS = {"office": build_office, "office_changed": build_office_changed, "floor": build_floor, "corridor": build_corridor}
 
 
 def main(argv: list[str] | None = None) -> int:

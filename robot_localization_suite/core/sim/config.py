@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ScenarioError
+from ..grid_map import GridMap
 from ..se2 import wrap_angle
 
 __all__ = [
@@ -25,12 +26,15 @@ __all__ = [
     "RendererArguments",
     "Person",
     "Kidnapping",
+    "MapChange",
+    "Reinitialization",
     "Waypoint",
     "VelocitySegment",
     "MotionPlan",
     "RANGE_NOISE_MODELS",
     "ODOMETRY_MODELS",
     "CAMERA_ENCODINGS",
+    "REINITIALIZE_TOPIC",
     "finite_value",
     "non_negative_value",
     "positive_value",
@@ -43,6 +47,8 @@ __all__ = [
 RANGE_NOISE_MODELS = ("gaussian", "uniform")
 ODOMETRY_MODELS = ("alphas", "bounded")
 CAMERA_ENCODINGS = ("mono8", "rgb8")
+# Where scan_sim publishes (live) and records (bag) a Reinitialization: std_msgs/Header stamped at the request.
+REINITIALIZE_TOPIC = "operator/reinitialize_global_localization"
 
 
 
@@ -306,6 +312,27 @@ class Kidnapping:
     time: float
     pose: tuple[float, float, float]
     continue_at: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class MapChange:
+    """At ``time`` [s] the world becomes ``grid_map`` (doors closed, furniture moved): the laser and
+    camera sense it from then on and ``scan_sim`` publishes it on ``map`` (docs/simulator.md).
+
+    ``path``: the map_server YAML it was loaded from, for messages.
+    """
+
+    time: float
+    grid_map: GridMap
+    path: str = ""
+
+
+@dataclass(frozen=True)
+class Reinitialization:
+    """At ``time`` [s] the simulated operator asks every localizer to localize globally again
+    (``~/reinitialize_global_localization``; docs/simulator.md)."""
+
+    time: float
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """Simulator scenarios: the validated world (map, start, motion, kidnappings, people, sensor models).
 
 A :class:`Scenario` checks itself on construction: every pose free and ``robot_radius`` from
-obstacles, kidnappings on the map and within the motion, people off the robot's path start; its
+obstacles (on the map in effect at its time), kidnappings, map changes and reinitialization
+requests within the motion, a changed map in the same frame, people off the robot's path start; its
 true :attr:`Scenario.trajectory` is integrated once (:mod:`.trajectory`). Loading from YAML:
 :func:`.scenario_yaml.load_scenario`. Layout and choices: docs/simulator.md.
 """
@@ -23,9 +24,11 @@ from .config import (
     CameraConfig,
     Kidnapping,
     LaserConfig,
+    MapChange,
     MotionPlan,
     OdometryConfig,
     Person,
+    Reinitialization,
     finite_value,
     format_pose,
     non_negative_value,
@@ -59,6 +62,8 @@ class Scenario:
     seed: int = 0
     name: str = "scenario"
     map_path: Path | None = None
+    map_changes: tuple[MapChange, ...] = ()
+    reinitializations: tuple[Reinitialization, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", pose_value("start", list(self.start)))
@@ -69,10 +74,11 @@ class Scenario:
                 raise ScenarioError(f"duration must be > 0, got {self.duration!r}")
         if self.motion is not None:
             self._check_motion(self.motion)
-        self.check_pose(self.start, "start pose")
+        self._check_events()
+        self.check_pose(self.start, "start pose", self.map_at(0.0))
         for index, kidnap in enumerate(self.kidnappings):
             time = non_negative_value(f"kidnappings[{index}].time", kidnap.time)
-            self.check_pose(kidnap.pose, f"kidnappings[{index}].pose (time {time} s)")
+            self.check_pose(kidnap.pose, f"kidnappings[{index}].pose (time {time} s)", self.map_at(time))
             if kidnap.continue_at is not None:
                 count = len(self.motion.waypoints) if self.motion is not None else 0
                 if not 0 <= kidnap.continue_at < count:
@@ -84,31 +90,77 @@ class Scenario:
             self._check_person(index, person)
         if self.motion is not None:
             end = self.end_time
-            for index, kidnap in enumerate(self.kidnappings):
-                if kidnap.time > end + 1e-9:
-                    raise ScenarioError(
-                        f"kidnappings[{index}].time {kidnap.time!r} s is after the scenario end {end:.1f} s"
-                    )
+            events = [("kidnappings", k.time) for k in self.kidnappings]
+            events += [("map_changes", c.time) for c in self.map_changes]
+            events += [("reinitializations", r.time) for r in self.reinitializations]
+            counters: dict[str, int] = {}
+            for kind, time in events:
+                index = counters[kind] = counters.get(kind, -1) + 1
+                if time > end + 1e-9:
+                    raise ScenarioError(f"{kind}[{index}].time {time!r} s is after the scenario end {end:.1f} s")
             self._check_trajectory()
 
-    # -- validation helpers -----------------------------------------------------------
-    def clearance(self, xy: Sequence[float] | NDArray[np.float64]) -> float:
-        """Distance [m] from a point to the nearest obstacle or unknown cell; -1 off the map or not free."""
-        cell = self.grid_map.world_to_cell(np.asarray(xy[:2], dtype=np.float64))
-        if not bool(self.grid_map.in_bounds(cell)):
-            return -1.0
-        if not bool(self.grid_map.free_mask[cell[1], cell[0]]):
-            return -1.0
-        field_m = self.grid_map.distance_field(unknown_is_obstacle=True)
-        # Cell-centre distances: half a cell of slack either way.
-        return float(field_m[cell[1], cell[0]]) - 0.5 * self.grid_map.resolution
+    # -- world events -------------------------------------------------------------------
+    def event_step(self, time: float) -> int:
+        """The laser step an event at ``time`` [s] takes effect at: the first at or after it (as kidnappings)."""
+        return max(0, int(math.ceil(float(time) / self.period - 1e-9 / self.period)))
 
-    def check_pose(self, pose: Sequence[float], what: str) -> None:
-        """Raise :class:`ScenarioError` naming ``what`` and the pose unless it is free with clearance."""
-        x0, x1, y0, y1 = self.grid_map.extent
+    def map_at(self, time: float) -> GridMap:
+        """The map the robot senses at ``time`` [s]: the last map change at or before it, else ``grid_map``."""
+        current = self.grid_map
+        for change in self.map_changes:
+            if change.time <= time + 1e-9:
+                current = change.grid_map
+        return current
+
+    def _check_events(self) -> None:
+        """Map changes: times increasing, at least a step apart, the map in the frame of ``grid_map``.
+        Reinitialization requests: times increasing."""
+        previous = -math.inf
+        for index, change in enumerate(self.map_changes):
+            time = non_negative_value(f"map_changes[{index}].time", change.time)
+            if math.isfinite(previous) and self.event_step(time) <= self.event_step(previous):
+                raise ScenarioError(f"map_changes[{index}].time {time!r} s must be at least one laser step after "
+                                    f"the previous map change ({previous!r} s)")
+            previous = time
+            grid, base = change.grid_map, self.grid_map
+            name = f"map_changes[{index}].map {change.path or '(grid)'}"
+            if not math.isclose(grid.resolution, base.resolution, rel_tol=1e-6):
+                raise ScenarioError(f"{name} has resolution {grid.resolution!r} m, the scenario map "
+                                    f"{base.resolution!r} m: a changed map must be in the same frame")
+            if not np.allclose(grid.origin, base.origin, atol=1e-6):
+                raise ScenarioError(f"{name} has origin {list(grid.origin)!r}, the scenario map "
+                                    f"{list(base.origin)!r}: a changed map must be in the same frame")
+        previous = -math.inf
+        for index, request in enumerate(self.reinitializations):
+            time = non_negative_value(f"reinitializations[{index}].time", request.time)
+            if time < previous:
+                raise ScenarioError(f"reinitializations[{index}].time {time!r} s is before the previous one "
+                                    f"({previous!r} s): list them in time order")
+            previous = time
+
+    # -- validation helpers -----------------------------------------------------------
+    def clearance(self, xy: Sequence[float] | NDArray[np.float64], grid_map: GridMap | None = None) -> float:
+        """Distance [m] from a point to the nearest obstacle or unknown cell of ``grid_map`` (default: the
+        scenario's first map); -1 off the map or not free."""
+        grid = self.grid_map if grid_map is None else grid_map
+        cell = grid.world_to_cell(np.asarray(xy[:2], dtype=np.float64))
+        if not bool(grid.in_bounds(cell)):
+            return -1.0
+        if not bool(grid.free_mask[cell[1], cell[0]]):
+            return -1.0
+        field_m = grid.distance_field(unknown_is_obstacle=True)
+        # Cell-centre distances: half a cell of slack either way.
+        return float(field_m[cell[1], cell[0]]) - 0.5 * grid.resolution
+
+    def check_pose(self, pose: Sequence[float], what: str, grid_map: GridMap | None = None) -> None:
+        """Raise :class:`ScenarioError` naming ``what`` and the pose unless it is free with clearance
+        on ``grid_map`` (default: the scenario's first map)."""
+        grid = self.grid_map if grid_map is None else grid_map
+        x0, x1, y0, y1 = grid.extent
         if not (x0 <= pose[0] < x1 and y0 <= pose[1] < y1):
             raise ScenarioError(f"{what} {format_pose(pose)} is off the map (x {x0:.2f}..{x1:.2f}, y {y0:.2f}..{y1:.2f})")
-        clearance = self.clearance(pose)
+        clearance = self.clearance(pose, grid)
         if clearance < 0.0:
             raise ScenarioError(f"{what} {format_pose(pose)} lies in an obstacle or unknown cell of the map")
         if clearance < self.robot_radius:
@@ -146,36 +198,47 @@ class Scenario:
             raise ScenarioError(f"people[{index}].waypoints must hold at least one [x, y]")
         points = np.asarray(person.waypoints, dtype=np.float64)
         closed = np.vstack([points, points[:1]]) if person.loop else points
-        for a, b in zip(closed[:-1], closed[1:], strict=True):
-            count = max(2, int(np.hypot(*(b - a)) / (0.5 * self.grid_map.resolution)) + 1)
-            samples = np.linspace(a, b, count)
-            free = self.grid_map.is_free(samples)
-            if not free.all():
-                bad = samples[np.argmin(free)]
-                raise ScenarioError(
-                    f"people[{index}] walks through an obstacle at [{bad[0]:.2f}, {bad[1]:.2f}] "
-                    f"between {a.tolist()} and {b.tolist()}"
-                )
-        if len(points) == 1 and not self.grid_map.is_free(points).all():
-            raise ScenarioError(f"people[{index}] stands in an obstacle at {points[0].tolist()}")
+        # People walk the whole scenario: their paths must be free on every map it has.
+        for grid, which in self._maps():
+            for a, b in zip(closed[:-1], closed[1:], strict=True):
+                count = max(2, int(np.hypot(*(b - a)) / (0.5 * grid.resolution)) + 1)
+                samples = np.linspace(a, b, count)
+                free = grid.is_free(samples)
+                if not free.all():
+                    bad = samples[np.argmin(free)]
+                    raise ScenarioError(
+                        f"people[{index}] walks through an obstacle{which} at [{bad[0]:.2f}, {bad[1]:.2f}] "
+                        f"between {a.tolist()} and {b.tolist()}"
+                    )
+            if len(points) == 1 and not grid.is_free(points).all():
+                raise ScenarioError(f"people[{index}] stands in an obstacle{which} at {points[0].tolist()}")
+
+    def _maps(self) -> list[tuple[GridMap, str]]:
+        """Every map of the scenario with how a message names it (empty for the first one)."""
+        return [(self.grid_map, "")] + [(c.grid_map, f" of map_changes[{i}] ({c.path or 'grid'})")
+                                       for i, c in enumerate(self.map_changes)]
 
     def _check_trajectory(self) -> None:
-        """Every sub-step pose of the true path must keep ``robot_radius`` from obstacles."""
+        """Every sub-step pose of the true path must keep ``robot_radius`` from the obstacles of the map
+        in effect at its time."""
         times, poses = self._dense_times, self._dense_poses
-        field_m = self.grid_map.distance_field(unknown_is_obstacle=True)
-        cells = self.grid_map.world_to_cell(poses[:, :2])
-        inside = self.grid_map.in_bounds(cells)
         clearance = np.full(len(poses), -1.0)
-        ix, iy = cells[inside, 0], cells[inside, 1]
-        free = self.grid_map.free_mask[iy, ix]
-        clearance[inside] = np.where(free, field_m[iy, ix] - 0.5 * self.grid_map.resolution, -1.0)
-        bad = np.nonzero(clearance < self.robot_radius)[0]
-        if bad.size:
-            k = int(bad[0])
-            raise ScenarioError(
-                f"the robot path reaches {format_pose(poses[k])} at t = {times[k]:.2f} s, "
-                f"{max(clearance[k], 0.0):.3f} m from an obstacle (robot_radius {self.robot_radius} m)"
-            )
+        starts = [-math.inf] + [c.time - 1e-9 for c in self.map_changes]
+        for (grid, which), start, stop in zip(self._maps(), starts, starts[1:] + [math.inf], strict=True):
+            span = (times >= start) & (times < stop)
+            field_m = grid.distance_field(unknown_is_obstacle=True)
+            cells = grid.world_to_cell(poses[:, :2])
+            inside = grid.in_bounds(cells) & span
+            ix, iy = cells[inside, 0], cells[inside, 1]
+            free = grid.free_mask[iy, ix]
+            clearance[inside] = np.where(free, field_m[iy, ix] - 0.5 * grid.resolution, -1.0)
+            bad = np.nonzero((clearance < self.robot_radius) & span)[0]
+            if bad.size:
+                k = int(bad[0])
+                raise ScenarioError(
+                    f"the robot path reaches {format_pose(poses[k])} at t = {times[k]:.2f} s, "
+                    f"{max(clearance[k], 0.0):.3f} m from an obstacle{which} (robot_radius {self.robot_radius} m)"
+                )
 
     # -- timing ---------------------------------------------------------------------------
     @property

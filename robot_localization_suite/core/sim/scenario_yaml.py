@@ -18,9 +18,11 @@ from .config import (
     CameraConfig,
     Kidnapping,
     LaserConfig,
+    MapChange,
     MotionPlan,
     OdometryConfig,
     Person,
+    Reinitialization,
     VelocitySegment,
     Waypoint,
     finite_value,
@@ -44,6 +46,8 @@ _TOP_KEYS = {
     "start",
     "motion",
     "kidnappings",
+    "map_changes",
+    "reinitializations",
     "people",
     "laser",
     "odometry",
@@ -156,6 +160,27 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
             )
         )
 
+    map_changes = []
+    for index, item in enumerate(_list("map_changes", data.get("map_changes"))):
+        raw = _mapping(f"map_changes[{index}]", item, {"time", "map"})
+        if "time" not in raw or "map" not in raw:
+            raise ScenarioError(f"map_changes[{index}] needs 'time' and 'map', got {item!r}")
+        changed_path = (Path(base_dir) / str(raw["map"])).resolve()
+        try:
+            changed_map = load_map_yaml(changed_path)
+        except MapError as exc:
+            raise ScenarioError(f"map_changes[{index}].map {str(raw['map'])!r}: {exc}") from exc
+        map_changes.append(
+            MapChange(non_negative_value(f"map_changes[{index}].time", raw["time"]), changed_map, str(raw["map"]))
+        )
+
+    reinitializations = []
+    for index, item in enumerate(_list("reinitializations", data.get("reinitializations"))):
+        raw = _mapping(f"reinitializations[{index}]", item, {"time"})
+        if "time" not in raw:
+            raise ScenarioError(f"reinitializations[{index}] needs 'time', got {item!r}")
+        reinitializations.append(Reinitialization(non_negative_value(f"reinitializations[{index}].time", raw["time"])))
+
     people = []
     for index, item in enumerate(_list("people", data.get("people"))):
         raw = _mapping(f"people[{index}]", item, {"radius", "speed", "waypoints", "loop"})
@@ -201,6 +226,8 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
         seed=_integer("seed", data.get("seed", 0)),
         name=str(data.get("name", "scenario")),
         map_path=map_path,
+        map_changes=tuple(map_changes),
+        reinitializations=tuple(reinitializations),
     )
 
 

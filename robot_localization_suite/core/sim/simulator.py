@@ -55,6 +55,8 @@ class SimulationStep:
         kidnapped: a kidnapping took effect at this step.
         blocked: a velocity command was cut short by an obstacle.
         image: camera image (``(H, W)`` mono8 or ``(H, W, 3)`` rgb8) when one is due, else ``None``.
+        new_map: the map the world changed to at this step (sensed from this step on), else ``None``.
+        reinitialize: the simulated operator asks for global localization at this step.
     """
 
     index: int
@@ -69,6 +71,8 @@ class SimulationStep:
     kidnapped: bool = False
     blocked: bool = False
     image: NDArray[np.uint8] | None = None
+    new_map: GridMap | None = None
+    reinitialize: bool = False
 
 
 def ray_circle_ranges(origin: ArrayLike, directions: ArrayLike, circles: ArrayLike) -> NDArray[np.float64]:
@@ -205,7 +209,10 @@ class Simulator:
         self.seed = int(scenario.seed if seed is None else seed)
         laser = scenario.laser
         self.angles = laser.angles
+        self._grid_map = scenario.grid_map
         self._raycaster = RayCaster(scenario.grid_map, max_range=laser.range_max)
+        self._map_changes_done = 0
+        self._reinitializations_done = 0
         streams = np.random.SeedSequence(self.seed).spawn(3)
         self._laser_rng = np.random.default_rng(streams[0])
         self._odometry = OdometrySimulator(scenario.odometry, np.random.default_rng(streams[1]))
@@ -241,7 +248,8 @@ class Simulator:
 
     @property
     def grid_map(self) -> GridMap:
-        return self.scenario.grid_map
+        """The map the robot senses now (the scenario's, or the last map change's)."""
+        return self._grid_map
 
     def _make_camera(self):
         config = self.scenario.camera
@@ -252,7 +260,7 @@ class Simulator:
         except ImportError as exc:
             raise ScenarioError(f"the scenario has a camera but the camera renderer cannot be loaded: {exc}") from exc
         try:
-            return CameraRenderer(self.scenario.grid_map, **config.renderer_arguments(), **dict(config.extra))
+            return CameraRenderer(self._grid_map, **config.renderer_arguments(), **dict(config.extra))
         except (TypeError, ValueError) as exc:
             raise ScenarioError(f"camera: {exc}") from exc
 
@@ -269,6 +277,7 @@ class Simulator:
             command: ``(v, w)`` [m/s, rad/s] for a scenario without motion plan; ignored otherwise.
         """
         self.index += 1
+        new_map, reinitialize = self._world_events()
         previous = self.true_pose
         kidnapped = blocked = False
         if self.index == 0:
@@ -310,7 +319,31 @@ class Simulator:
             kidnapped=kidnapped,
             blocked=blocked,
             image=image,
+            new_map=new_map,
+            reinitialize=reinitialize,
         )
+
+    def _world_events(self) -> tuple[GridMap | None, bool]:
+        """Apply the map changes due at this step (the newest wins); whether a reinitialization is due."""
+        scenario = self.scenario
+        new_map = None
+        changes = scenario.map_changes
+        while (self._map_changes_done < len(changes)
+               and scenario.event_step(changes[self._map_changes_done].time) <= self.index):
+            new_map = changes[self._map_changes_done].grid_map
+            self._map_changes_done += 1
+        if new_map is not None:
+            self._grid_map = new_map
+            self._raycaster = RayCaster(new_map, max_range=scenario.laser.range_max)
+            if self._camera is not None:
+                self._camera = self._make_camera()
+        requests = scenario.reinitializations
+        reinitialize = False
+        while (self._reinitializations_done < len(requests)
+               and scenario.event_step(requests[self._reinitializations_done].time) <= self.index):
+            self._reinitializations_done += 1
+            reinitialize = True
+        return new_map, reinitialize
 
     def _odom_velocity(self, previous: NDArray[np.float64], current: NDArray[np.float64]) -> tuple[float, float]:
         if self.index == 0:
@@ -326,7 +359,7 @@ class Simulator:
         if not (math.isfinite(v) and math.isfinite(w)):
             raise ScenarioError(f"velocity command must be finite, got v={v!r}, w={w!r}")
         moved = integrate_unicycle(pose, v, w, self.period)
-        if v != 0.0 and self.scenario.clearance(moved) < self.scenario.robot_radius:
+        if v != 0.0 and self.scenario.clearance(moved, self._grid_map) < self.scenario.robot_radius:
             turned = pose.copy()
             turned[2] = float(wrap_angle(pose[2] + w * self.period))
             return turned, (0.0, w), True

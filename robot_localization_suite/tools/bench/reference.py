@@ -1,4 +1,5 @@
-"""What a bag holds for the benchmark: ground truth, odometry, kidnappings, map, topics.
+"""What a bag holds for the benchmark: ground truth, odometry, kidnappings, map, map changes,
+reinitialization requests, topics.
 
 :func:`load_reference` reads it once before the runs; :func:`resolve_map` picks the map
 of a bag (``--map``, the bag's ``/map``, or ``config/maps/``). The ROS modules that read
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,6 +21,7 @@ from ... import registry
 from ...core import metrics
 from ...core.errors import MapError
 from ...core.grid_map import GridMap, load_map_yaml
+from ...core.sim.config import REINITIALIZE_TOPIC as _REINITIALIZE
 
 if TYPE_CHECKING:
     from ...ros.bag import BagMessage
@@ -31,6 +33,7 @@ __all__ = [
     "ODOM_TOPIC",
     "TRUTH_TOPIC",
     "MAP_TOPIC",
+    "REINITIALIZE_TOPIC",
     "BagReference",
     "load_reference",
     "map_candidates",
@@ -44,6 +47,8 @@ IMAGE_TOPIC = "/camera/image_raw"
 ODOM_TOPIC = "/odom"
 TRUTH_TOPIC = "/ground_truth"
 MAP_TOPIC = "/map"
+# A reinitialization request recorded by scan_sim (docs/simulator.md): the replay calls reinitialize().
+REINITIALIZE_TOPIC = "/" + _REINITIALIZE
 
 
 @dataclass
@@ -59,6 +64,8 @@ class BagReference:
     map_msg_grid: GridMap | None
     sensor_counts: dict[str, int]
     recovery: Recovery | None = None  # what was read back from a damaged bag; None: the bag is sound
+    map_change_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s] of later /map
+    reinitialize_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s]
 
     @property
     def has_scan(self) -> bool:
@@ -107,17 +114,26 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
     topics = bag_topics(path)
     truth_msgs, odom_msgs = [], []
     map_grid = None
-    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC])
+    maps_seen = 0
+    map_changes: list[float] = []
+    requests: list[float] = []
+    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC, REINITIALIZE_TOPIC])
     for item in messages:
         if item.topic == TRUTH_TOPIC:
             truth_msgs.append(item)
         elif item.topic == ODOM_TOPIC:
             odom_msgs.append(item)
-        elif item.topic == MAP_TOPIC and map_grid is None:
+        elif item.topic == MAP_TOPIC:
+            maps_seen += 1
+            if maps_seen > 1:  # a map change: the replay gives it to the localizer there
+                map_changes.append(item.stamp_ns * 1e-9)
+                continue
             try:
                 map_grid = conversions.grid_map_from_msg(item.msg)
             except MapError as exc:
                 LOG.warning("bag %s: ignoring its /map message: %s", path.name, exc)
+        elif item.topic == REINITIALIZE_TOPIC:
+            requests.append(item.stamp_ns * 1e-9)
     truth = _trajectory(truth_msgs)
     odometry = _trajectory(odom_msgs)
     kidnaps = metrics.detect_kidnappings(truth, odometry) if truth is not None else np.zeros(0, dtype=np.int64)
@@ -133,6 +149,8 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         map_msg_grid=map_grid,
         sensor_counts={t: counts.get(t, 0) for t in (SCAN_TOPIC, IMAGE_TOPIC)},
         recovery=recovery,
+        map_change_stamps=np.array(map_changes, dtype=np.float64),
+        reinitialize_stamps=np.array(requests, dtype=np.float64),
     )
 
 

@@ -2,7 +2,9 @@
 
 Messages go to the same ``ros/adapter.py`` :class:`LocalizerAdapter` the nodes use, in
 bag order, each handled before the next (``ros/bag.py``), so the benchmark measures the
-code a robot runs, without DDS. How a run is fed and timed: ``docs/benchmark.md``.
+code a robot runs, without DDS; a ``/map`` after the bag's first is a map change
+(``adapter.on_map_msg``), a reinitialization request calls ``adapter.reinitialize()``.
+How a run is fed and timed: ``docs/benchmark.md``.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from ...core.interval import angle_hull
 from ...core.localizer import Estimate, LocalizerStatus
 from .isolation import rss_mb
 from .prepare import prepare_localizer, prepare_scan
-from .reference import IMAGE_TOPIC, ODOM_TOPIC, SCAN_TOPIC, BagReference
+from .reference import IMAGE_TOPIC, MAP_TOPIC, ODOM_TOPIC, REINITIALIZE_TOPIC, SCAN_TOPIC, BagReference
 from .specs import LocalizerSpec
 
 if TYPE_CHECKING:
@@ -234,7 +236,20 @@ def replay_localizer(
             record.truncated = True
             raise _StopReplay
 
-    handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor}
+    maps_seen = [0]
+
+    def on_map(msg: Any) -> None:
+        # The first /map is the bag's map, given before the replay (or replaced by --map); a later one
+        # is a map change, given where it is, as a node gets it on its map topic.
+        maps_seen[0] += 1
+        if maps_seen[0] > 1 and grid_map is not None and hasattr(timed, "set_map"):
+            adapter.on_map_msg(msg)
+
+    def on_reinitialize(_msg: Any) -> None:
+        adapter.reinitialize()
+
+    handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor, MAP_TOPIC: on_map,
+                                                 REINITIALIZE_TOPIC: on_reinitialize}
     try:
         replay(reference.path, handlers, on_message=on_message)
     except _StopReplay:

@@ -35,6 +35,22 @@ def _rate(values: list[bool] | None) -> float | None:
     return round(float(np.mean(values)), 4)
 
 
+def _after_events(record: RunRecord, reference: BagReference, correct: np.ndarray) -> list[dict[str, Any]]:
+    """Per map change and reinitialization request of the bag, the outputs from it to the next event:
+    how many, ``correct_rate`` and the status fields (``false_localized_rate``: is LOCALIZED honest there?)."""
+    events = sorted([(float(t), "map_change") for t in reference.map_change_stamps]
+                    + [(float(t), "reinitialization") for t in reference.reinitialize_stamps])
+    out = []
+    bounds = [t for t, _ in events[1:]] + [np.inf]
+    for (start, kind), stop in zip(events, bounds, strict=True):
+        inside = (record.stamps >= start - 1e-9) & (record.stamps < stop - 1e-9)
+        statuses = [s for s, keep in zip(record.statuses, inside, strict=True) if keep]
+        out.append({"event": kind, "time_s": round(start, 3), "outputs": int(inside.sum()),
+                    "correct_rate": _rate(list(correct[inside])),
+                    **metrics.status_fields(statuses, correct[inside])})
+    return out
+
+
 def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str, Any], dict[str, Any]]:
     """``summary.json`` fields of one run, and per-output arrays for the plots."""
     fields: dict[str, Any] = {"mode": record.mode}
@@ -53,6 +69,8 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
             fields[key] = evaluation[key]
         series = {key: evaluation[key] for key in ("correct", "fine", "position_error_m", "heading_error_rad")}
         fields.update(metrics.status_fields(record.statuses, evaluation["correct"]))
+        if reference.map_change_stamps.size or reference.reinitialize_stamps.size:
+            fields["after_events"] = _after_events(record, reference, np.asarray(evaluation["correct"], dtype=bool))
     else:
         fields.update(correct=None, fine=None, time_to_first_fix_s=None, kidnap_recovery_s=[],
                       kidnap_recovery_updates=[], kidnap_candidate_recovery_updates=None, correct_rate=None,
@@ -64,6 +82,8 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
     fields["inputs"] = record.inputs
     fields["ground_truth"] = truth is not None
     fields["kidnappings"] = int(reference.kidnap_indices.size)
+    fields["map_changes"] = int(reference.map_change_stamps.size)
+    fields["reinitializations"] = int(reference.reinitialize_stamps.size)
     fields["map_setup_s"] = record.map_setup_s
     if record.containment is not None:
         fields["containment_rate"] = _rate(record.containment)

@@ -104,6 +104,10 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
                 notes.append("no ground truth")
             if fields.get("update_errors"):
                 notes.append(f"{fields['update_errors']} update errors")
+            for event in fields.get("after_events") or []:
+                notes.append(f"after the {event['event'].replace('_', ' ')} at {_fmt(event['time_s'])} s: correct "
+                             f"{_fmt(event['correct_rate'])}, LOCALIZED {_fmt(event['localized_rate'])}, false "
+                             f"LOCALIZED {_fmt(event['false_localized_rate'])}")
             if "skipped" in fields or ("error" in fields and "outputs" not in fields):
                 cells = ["" for _ in columns]
             else:
