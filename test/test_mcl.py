@@ -23,6 +23,7 @@ from robot_localization_suite.core.filter.particles import (
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
+from robot_localization_suite.core.mcl.rivals import RivalTracker
 from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
@@ -435,10 +436,12 @@ def test_clusters_separate_distant_groups_and_join_across_plus_minus_pi() -> Non
     assert abs(abs(mean[2]) - math.pi) < 0.05 and covariance[2, 2] < 0.01
 
 
-def test_a_rival_cluster_with_ambiguous_weight_rules_out_localized(office: GridMap, run: Drive) -> None:
-    """LOCALIZED means the filter stands behind one pose: a second hypothesis holding
-    ``ambiguous_cluster_weight`` of the weight makes it AMBIGUOUS, however compact the first is."""
-    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, random_seed=0), office)
+@pytest.mark.parametrize("max_rivals", [0, 8])
+def test_a_rival_cluster_rules_out_localized(office: GridMap, run: Drive, max_rivals: int) -> None:
+    """LOCALIZED means the filter stands behind one pose: a second cluster holding ``ambiguous_cluster_weight``
+    of the weight makes it AMBIGUOUS, however compact the first is; with rivals tracked, so does any cluster
+    whose odds against the first exceed ``1 / rival_odds``."""
+    localizer = MonteCarloLocalizer(MclSettings(max_particles=2000, random_seed=0, max_rivals=max_rivals), office)
     localizer.set_initial_pose(run.truth[0], np.diag([1e-4, 1e-4, 1e-4]))
     here = localizer.particles.copy()
     rival = here.copy()
@@ -448,9 +451,11 @@ def test_a_rival_cluster_with_ambiguous_weight_rules_out_localized(office: GridM
     def status(rival_share: float) -> LocalizerStatus:
         weights = np.concatenate([np.full(len(here), (1.0 - rival_share) / len(here)),
                                   np.full(len(rival), rival_share / len(rival))])
+        localizer.rivals.clear()
         return localizer._estimate(0.0, weights, 1.0, 60, 1000.0).status
 
-    assert status(0.1) is LocalizerStatus.LOCALIZED
+    assert status(0.005) is LocalizerStatus.LOCALIZED
+    assert status(0.1) is (LocalizerStatus.AMBIGUOUS if max_rivals else LocalizerStatus.LOCALIZED)
     assert status(0.3) is LocalizerStatus.AMBIGUOUS
 
 
@@ -498,3 +503,86 @@ def test_tracking_through_a_corridor_where_a_third_of_the_beams_hit_unmapped_box
     localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
     errors = _errors(_replay(localizer, run), run)
     assert len(errors) > 100 and errors[:, 0].max() < 0.2
+
+
+# -- rival hypotheses -------------------------------------------------------------------------
+def _twin_rooms() -> GridMap:
+    """Two identical rooms 12 m apart, each a 6 m x 4 m room with a 1 m passage up to an end room; only the
+    first end room holds a box, seen only from inside that end room."""
+    resolution = 0.05
+    data = np.full((int(10.0 / resolution), int(20.0 / resolution)), -1, dtype=np.int8)
+
+    def box(x0: float, y0: float, x1: float, y1: float, value: int = 100) -> None:
+        data[round(y0 / resolution): round(y1 / resolution), round(x0 / resolution): round(x1 / resolution)] = value
+
+    for x in (0.0, 12.0):
+        box(x, 0.0, x + 7.0, 10.0)
+        box(x + 0.5, 0.5, x + 6.5, 4.5, 0)
+        box(x + 5.5, 4.5, x + 6.5, 7.5, 0)
+        box(x + 3.0, 7.5, x + 6.5, 9.5, 0)
+        box(x + 1.5, 1.5, x + 2.0, 2.0)
+    box(3.4, 8.0, 4.2, 8.8)
+    return GridMap(data, resolution, (0.0, 0.0))
+
+
+# Loops in the first room (the twins look alike), then up the passage into the end room with the box.
+_TWIN_WAY = np.array([[2.5, 2.5], [4.5, 3.0], [3.0, 3.8], [2.5, 2.5], [4.5, 2.0], [3.2, 3.6], [2.5, 2.5],
+                      [4.8, 2.2], [6.0, 3.8], [6.0, 7.0], [5.2, 8.5], [6.0, 7.0], [6.0, 3.8], [2.5, 2.5]])
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_twin_rooms_stay_ambiguous_until_the_scans_differ(seed: int) -> None:
+    """After a global start in one of two identical rooms the filter must not claim LOCALIZED: the other
+    room stays a rival (among the candidates) until the robot sees what tells them apart; then it is
+    LOCALIZED at the truth. Without rivals, resampling drops one twin and the filter claims LOCALIZED."""
+    rooms = _twin_rooms()
+    run = drive(rooms, steps=420, seed=2, waypoints=_TWIN_WAY)
+    twin_phase = run.truth[:, 1] < 4.5  # in the first room, the end room out of sight
+
+    def replay(**options: int) -> list[tuple[int, object]]:
+        return _replay(MonteCarloLocalizer(MclSettings(max_particles=20000, random_seed=seed, **options), rooms), run)
+
+    outputs = replay()
+    alike = [(k, e) for k, e in outputs if twin_phase[k] and k >= 40]
+    assert len(alike) > 60
+    assert all(e.status is not LocalizerStatus.LOCALIZED for _, e in alike)
+    twin_listed = [min(np.hypot(*(c[:2] - run.truth[k, :2] - (12.0, 0.0))) for c in e.candidates[:10]) < 0.5
+                   for k, e in alike]
+    assert np.mean(twin_listed) > 0.9
+    k, last = outputs[-1]
+    assert last.status is LocalizerStatus.LOCALIZED and pose_error(last.pose, run.truth[k])[0] < 0.2
+
+    without = [e for k, e in replay(max_rivals=0) if twin_phase[k]]
+    assert any(e.status is LocalizerStatus.LOCALIZED for e in without)
+
+
+def test_a_rival_is_ruled_out_or_wins_by_its_summed_bayes_factors() -> None:
+    """A cluster becomes a rival only if its odds against the best exceed 1 / odds and it lies apart; each scan
+    adds its log Bayes factor; below 1 / odds it is dropped, above odds it wins."""
+    rng = np.random.default_rng(0)
+    best = np.zeros(3)
+    far = np.array([5.0, 0.0, 0.0])
+    members = far + 0.01 * rng.standard_normal((50, 3))
+    tracker = RivalTracker(odds=100.0, capacity=2, samples=16, separation=1.0)
+    tracker.consider(np.array([far, [0.5, 0.0, 0.0]]), np.array([0.005, 0.3]), [members, members],
+                     [np.ones(50), np.ones(50)], best, 1.0, rng)
+    assert len(tracker) == 0  # too light, and too close
+    tracker.consider(np.array([far]), np.array([0.1]), [members], [np.ones(50)], best, 1.0, rng)
+    assert len(tracker) == 1 and tracker.rivals[0].log_odds == pytest.approx(math.log(0.1))
+
+    def constant(value: float):
+        return lambda poses: np.full(len(poses), value)
+
+    # The cloud explains each scan e times better (tempered): log(0.1) - 1 - 1 > log(1/100) > log(0.1) - 3.
+    for scans in range(1, 4):
+        tracker.weigh(constant(-2.0), cloud_log_predictive=0.5, temper=0.25, best_pose=best, rng=rng)
+        assert (len(tracker) == 1) == (scans < 3)
+    tracker.consider(np.array([far]), np.array([0.1]), [members], [np.ones(50)], best, 1.0, rng)
+    for _ in range(6):  # the rival explains each scan e times better: log(0.1) + 6 < log(100) < log(0.1) + 7
+        assert tracker.winner() is None
+        tracker.weigh(constant(-2.0), cloud_log_predictive=-1.5, temper=0.25, best_pose=best, rng=rng)
+    tracker.weigh(constant(-2.0), cloud_log_predictive=-1.5, temper=0.25, best_pose=best, rng=rng)
+    winner = tracker.winner()
+    assert winner is not None and np.hypot(*(winner.best[:2] - far[:2])) < 0.1
+    tracker.weigh(constant(0.0), cloud_log_predictive=0.0, temper=1.0, best_pose=winner.best, rng=rng)
+    assert len(tracker) == 0  # the cloud has reached it: one hypothesis, no rival

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import logsumexp
 
 from ..filter.odometry_gate import OdometryGate
 from ..filter.particles import (
@@ -37,6 +38,7 @@ from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
 from ..se2 import wrap_angle
+from .rivals import RivalTracker
 from .sensor_models import BeamModel, LikelihoodFieldModel
 from .settings import LASER_MODEL_TYPES, RECOVERY_SAMPLINGS, ROBOT_MODEL_TYPES, MclSettings
 
@@ -44,6 +46,7 @@ __all__ = ["MclSettings", "MonteCarloLocalizer", "LASER_MODEL_TYPES", "ROBOT_MOD
 
 _MIN_INITIAL_STD_XY = 0.02  # [m]
 _MIN_INITIAL_STD_YAW = 0.01  # [rad]
+_RIVAL_SAMPLES = 128  # poses per rival hypothesis, and the cloud's heaviest particles it is weighed against
 
 
 @dataclass
@@ -129,6 +132,8 @@ class MonteCarloLocalizer:
         self.log_weights: NDArray[np.float64] = np.zeros(0)
         # Odometry poses for interpolation at scan stamps; the reference is the odometry at the last update.
         self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
+        self.rivals = RivalTracker(self.settings.rival_odds, self.settings.max_rivals, _RIVAL_SAMPLES,
+                                   self.settings.rival_separation)
         self._reset_filter_state()
         self.last_estimate: Estimate | None = None
         # The node's set_initial_pose / initial_pose.* (registry.NodeSettings) arrive through set_initial_pose.
@@ -219,6 +224,7 @@ class MonteCarloLocalizer:
             return None
         if moved and gate.reference is not None and odom is not None:
             self.particles = self.motion_model.sample(self.particles, gate.reference, odom, self.rng)
+            self.rivals.predict(self.motion_model, gate.reference, odom, self.rng)
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 
@@ -266,7 +272,9 @@ class MonteCarloLocalizer:
         self._scan_fit = 0.0
         self._ever_localized = False
         self._compact = False
-        self._trusted = False  # the last update was LOCALIZED: its scan fit held
+        self._trusted = False  # the last update was LOCALIZED, with no other cluster of weight
+        self._scored_with_credit = False  # the last update scored unknown space with unknown_occupancy
+        self.rivals.clear()
 
     def _select_beams(self, scan: Scan) -> _Beams | None:
         """Valid beams of ``scan``, ``max_beams`` of them evenly spaced; None if there is none."""
@@ -363,12 +371,15 @@ class MonteCarloLocalizer:
         assert self._sensor is not None and self.grid_map is not None
         kept, skipped = self._skip_unexplained_beams(beams)
         beam_count = len(kept.angles)
+        self._scored_with_credit = self._converged() and isinstance(self._sensor, LikelihoodFieldModel) \
+            and s.unknown_occupancy > 0.0
         log_likelihood = self._scan_log_likelihood(self.particles, kept)
         floor = self._sensor.floor_log_likelihood(beams.max_range)
         impossible = ~self._pose_is_possible(self.particles)
         log_likelihood[impossible] = beam_count * floor
         temper = min(1.0, s.effective_beams / beam_count)
         temper *= self._adaptive_temper(temper * log_likelihood)
+        prior_log_weights = self.log_weights
         self.log_weights = self.log_weights + temper * log_likelihood
         weights = normalize_log_weights(self.log_weights)
 
@@ -390,6 +401,8 @@ class MonteCarloLocalizer:
         self._scan_fit_fast.update(scan_fit)
         self._scan_fit = scan_fit
 
+        if s.max_rivals > 0 and self._weigh_rivals(beams, prior_log_weights, all_beams, floor):
+            weights = normalize_log_weights(self.log_weights)
         effective = float(1.0 / np.sum(weights * weights))  # effective sample size
         estimate = self._estimate(stamp, weights, fit, len(beams.angles), effective)
         if s.do_beamskip:
@@ -437,26 +450,36 @@ class MonteCarloLocalizer:
         scan_slow, scan_fast = self._scan_fit_slow.value, self._scan_fit_fast.value
         fit_holds = scan_slow <= 0.0 or min(scan_fast, self._scan_fit) >= s.lost_fit_ratio * scan_slow
         # A rival cluster with ambiguous_cluster_weight is a second hypothesis: no LOCALIZED beside it.
-        if compact and fit_holds and second_weight < s.ambiguous_cluster_weight:
+        if s.max_rivals > 0:
+            self._consider_rivals(labels, ranked, np.asarray(cluster_weights, dtype=np.float64), kept, weights, pose)
+        rivals = len(self.rivals)
+        if compact and fit_holds and second_weight < s.ambiguous_cluster_weight and not rivals:
             status = LocalizerStatus.LOCALIZED
             self._ever_localized = True
-        elif second_weight >= s.ambiguous_cluster_weight:
+        elif second_weight >= s.ambiguous_cluster_weight or rivals:
             status = LocalizerStatus.AMBIGUOUS
         elif self._ever_localized:
             status = LocalizerStatus.LOST
         else:
             status = LocalizerStatus.INITIALIZING
-        self._trusted = status is LocalizerStatus.LOCALIZED
+        # nav2 skips beams once every particle is within 0.5 m; here: once the other clusters are no rival
+        self._trusted = status is LocalizerStatus.LOCALIZED and best_weight >= 1.0 - 1.0 / s.rival_odds
 
         reported = _heaviest_first(weights, s.max_reported_particles)
+        candidates, candidate_weights = self.particles[reported], weights[reported]
+        if rivals:  # each rival's best pose after the heaviest particle, weighted by its odds
+            rival_poses = np.array([rival.best for rival in self.rivals.rivals])
+            rival_weights = best_weight * np.exp([rival.log_odds for rival in self.rivals.rivals])
+            candidates = np.vstack([candidates[:1], rival_poses, candidates[1:]])
+            candidate_weights = np.concatenate([candidate_weights[:1], rival_weights, candidate_weights[1:]])
 
         return Estimate(
             stamp=float(stamp),
             pose=pose,
             covariance=covariance,
             status=status,
-            candidates=self.particles[reported].copy(),
-            candidate_weights=weights[reported].copy(),
+            candidates=candidates.copy(),
+            candidate_weights=candidate_weights.copy(),
             details={
                 "particles": int(len(self.particles)),
                 "clusters": int(cluster_count),
@@ -466,8 +489,71 @@ class MonteCarloLocalizer:
                 "effective_sample_size": round(effective, 1),
                 "w_slow": round(self.w_slow, 5),
                 "w_fast": round(self.w_fast, 5),
+                "rivals": rivals,
             },
         )
+
+    def _consider_rivals(self, labels: NDArray[np.int64], ranked: NDArray[np.int64],
+                         cluster_weights: NDArray[np.float64], kept: NDArray[np.int64],
+                         weights: NDArray[np.float64], best_pose: NDArray[np.float64]) -> None:
+        """Hand the clusters heavy enough to be rivals (odds above 1 / rival_odds) to the tracker."""
+        best_weight = float(cluster_weights[ranked[0]])
+        heavy = [int(c) for c in ranked[1: 1 + self.settings.max_rivals]
+                 if cluster_weights[c] * self.settings.rival_odds >= best_weight]
+        if not heavy:
+            return
+        means, members, member_weights = [], [], []
+        for cluster in heavy:
+            index = kept[labels == cluster]
+            mean, _ = weighted_pose_statistics(self.particles[index], weights[index])
+            means.append(mean)
+            members.append(self.particles[index])
+            member_weights.append(weights[index])
+        self.rivals.consider(np.array(means), cluster_weights[heavy], members, member_weights, best_pose,
+                             best_weight, self.rng)
+
+    def _weigh_rivals(self, beams: _Beams, prior_log_weights: NDArray[np.float64],
+                      cloud_scores: NDArray[np.float64], floor: float) -> bool:
+        """Weigh the rivals on this scan against the cloud; move the cloud to one that wins. True if it moved.
+
+        Rivals and the cloud are scored alike: every beam, nav2's model (no unknown-space credit,
+        no beam skipping, which would favour the cloud's own hypothesis); ``cloud_scores`` are the
+        particles' scores over every beam, reused when they were taken that way.
+        """
+        if not len(self.rivals):
+            return False
+        sensor = self._sensor
+        assert sensor is not None
+        s = self.settings
+        count = len(beams.angles)
+
+        def score(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+            values = sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=beams.max_range)
+            values[~self._pose_is_possible(poses)] = count * floor
+            return values
+
+        if self._scored_with_credit:
+            cloud_scores = score(self.particles)
+        temper = min(1.0, s.effective_beams / count)
+        prior = normalize_log_weights(prior_log_weights)
+        with np.errstate(divide="ignore"):
+            cloud_log_predictive = float(logsumexp(np.log(prior) + temper * cloud_scores))
+        best = int(np.argmax(prior_log_weights + temper * cloud_scores))
+        self.rivals.weigh(score, cloud_log_predictive, temper, self.particles[best], self.rng)
+        winner = self.rivals.winner()
+        if winner is None:
+            return False
+        # The rival's odds exceed rival_odds: the cloud (whose odds are now below 1 / rival_odds) moves there.
+        self.rivals.rivals.remove(winner)
+        count_now = len(self.particles)
+        chosen = self.rng.integers(0, len(winner.samples), count_now)
+        jitter = self.rng.standard_normal((count_now, 3)) * np.array(
+            [s.initial_std_xy, s.initial_std_xy, s.initial_std_yaw]) * 0.25
+        particles = winner.samples[chosen] + jitter
+        particles[:, 2] = wrap_angle(particles[:, 2])
+        self.particles = particles
+        self.log_weights = np.zeros(count_now)
+        return True
 
     def _recovery_poses(self, count: int, beams: _Beams, better_than: float) -> NDArray[np.float64]:
         """At most ``count`` poses for Augmented-MCL injection (``recovery_sampling``).

@@ -153,6 +153,18 @@ class MclSettings(Settings):
     ambiguous_cluster_weight: float = setting(
         0.2, "a second cluster this heavy makes the state AMBIGUOUS, never LOCALIZED (ours)", low=0.0, high=1.0
     )
+    rival_odds: float = setting(
+        100.0, "a particle cluster is a rival hypothesis while its posterior odds against the best cluster exceed "
+        "1 / rival_odds: kept after resampling drops it, it holds the state at AMBIGUOUS until the scans rule it "
+        "out, and the filter moves to it when its odds exceed rival_odds; beam skipping and the injection's "
+        "must-do-better rule wait until the other clusters hold less than 1 / rival_odds (ours)",
+        low=1.0, low_open=True, high=1e12,
+    )
+    max_rivals: int = setting(8, "rival hypotheses kept at most, the likeliest; 0: none (ours)", low=0, high=1000)
+    rival_separation: float = setting(
+        1.0, "a cluster this close to the best one (or to a rival), heading within 45 degrees, is the same "
+        "hypothesis (ours)", unit="m", low=0.0, high=1e3,
+    )
     max_reported_particles: int = setting(
         5000, "particles returned with each estimate, heaviest first (ours)", low=0, high=10_000_000
     )
