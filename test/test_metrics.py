@@ -322,3 +322,20 @@ def test_status_fields_count_every_output_and_only_localized_ones_can_be_falsely
     assert metrics.status_fields(["AMBIGUOUS"], [False])["false_localized_rate"] is None
     with pytest.raises(ValueError, match="2 statuses but 1"):
         metrics.status_fields(["LOST", "LOST"], [True])
+
+
+def test_false_localized_outside_kidnaps_leaves_out_the_unnoticed_kidnapping_only():
+    truth, odometry = kidnapped_line(jump_at=5.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    outputs, _ = old_place_until(truth, odometry, 5.0, 13.0)  # 8 s on the old place, then the truth
+    outputs[stamps >= 15.0 - 1e-9, 1] += 2.0  # and from 15 s a wrong fix of its own, 2 m off
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    status = metrics.status_fields(["LOCALIZED"] * len(stamps), fields["correct"], fields["recovering"])
+    wrong = ~np.asarray(fields["correct"])
+    assert status["false_localized_rate"] == pytest.approx(wrong.mean(), abs=1e-4)
+    # Outside the window (before 5 s and from 13 s): the 2 m fix from 15 s is still counted.
+    outside = (stamps < 5.0 - 1e-9) | (stamps >= 13.0 - 1e-9)
+    assert status["false_localized_rate_outside_kidnaps"] == pytest.approx(wrong[outside].mean(), abs=1e-4)
+    assert 0.0 < status["false_localized_rate_outside_kidnaps"] < status["false_localized_rate"]
+    assert "false_localized_rate_outside_kidnaps" not in metrics.status_fields(["LOCALIZED"], [True])

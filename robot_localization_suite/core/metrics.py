@@ -219,23 +219,31 @@ def _rounded(value: float | None, digits: int = 4) -> float | None:
     return round(float(value), digits)
 
 
-def status_fields(statuses: Sequence[str], correct: ArrayLike) -> dict[str, Any]:
+def status_fields(statuses: Sequence[str], correct: ArrayLike, recovering: ArrayLike | None = None) -> dict[str, Any]:
     """How far a localizer's own verdict can be trusted, over all its outputs.
 
     ``localized_rate``: outputs reported LOCALIZED over all outputs; ``false_localized_rate``:
     LOCALIZED outputs that are not correct over all LOCALIZED outputs (null when none is); both
     count every output, before the first fix too: a robot acts on LOCALIZED whenever it is said.
+    Given ``recovering`` (per output: inside a kidnapping's window, from the jump to the recovery
+    fix), also ``false_localized_rate_outside_kidnaps``: the same over the LOCALIZED outputs
+    outside those windows, to tell a kidnapping the method has not noticed yet from a wrong fix.
     """
     localized = np.asarray([s == "LOCALIZED" for s in statuses], dtype=bool)
     good = np.asarray(correct, dtype=bool).reshape(-1)
     if localized.size != good.size:
         raise ValueError(f"status_fields: {localized.size} statuses but {good.size} correctness flags")
     count = int(localized.sum())
-    return {
+    fields: dict[str, Any] = {
         "localized_outputs": count,
         "localized_rate": _rounded(count / localized.size) if localized.size else None,
         "false_localized_rate": _rounded(float(np.mean(~good[localized]))) if count else None,
     }
+    if recovering is not None:
+        outside = localized & ~np.asarray(recovering, dtype=bool).reshape(-1)
+        fields["false_localized_rate_outside_kidnaps"] = (_rounded(float(np.mean(~good[outside])))
+                                                          if outside.any() else None)
+    return fields
 
 
 def timing_fields(update_ms: ArrayLike) -> dict[str, float | None]:
@@ -265,7 +273,8 @@ def evaluate_outputs(
     ``time_to_first_fix_s``, ``kidnap_recovery_s``, ``correct_rate``, ``fine_rate``,
     ``rmse_xy_m``, ``rmse_theta_rad``, ``kidnap_recovery_updates`` and, given
     ``candidates`` ``(N, K, 3)`` (each output's first K candidates, NaN-padded),
-    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist.
+    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist; and ``recovering``, per output
+    whether it lies in a kidnapping's window (from the jump to its recovery fix, at least 5 s).
     """
     stamps = np.asarray(output_stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(output_poses, dtype=np.float64).reshape(-1, 3)
@@ -324,6 +333,7 @@ def evaluate_outputs(
         fine=fine,
         position_error_m=dxy,
         heading_error_rad=dtheta,
+        recovering=recovering,
     )
     return fields
 

@@ -47,6 +47,7 @@ _REPLAY_COLUMNS = (
     ("map_coverage_median", "map coverage median"),
     ("localized_rate", "LOCALIZED rate"),
     ("false_localized_rate", "false LOCALIZED rate"),
+    ("false_localized_rate_outside_kidnaps", "false LOCALIZED rate outside kidnappings"),
     ("time_to_first_fix_s", "first fix [s]"),
     ("kidnap_recovery_s", "kidnap recovery [s]"),
     ("kidnap_recovery_updates", "kidnap recovery [updates]"),
