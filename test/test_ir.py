@@ -32,7 +32,7 @@ from robot_localization_suite.core.ir.index import (
 )
 from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
 from robot_localization_suite.core.ir.patterns import NO_RETURN, extract_runs, pattern_terms
-from robot_localization_suite.core.ir.query import LiveScan, step2_poses
+from robot_localization_suite.core.ir.query import LiveScan, step2_poses, suppress_duplicates
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import recall_at_k
 from robot_localization_suite.core.raycast import RayCaster
@@ -211,15 +211,43 @@ def test_a_noise_free_scan_at_a_grid_pose_comes_back_top_1(world: GridMap, local
 
 
 def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: GridMap, localizer: IRLocalizer) -> None:
-    paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
+    # nms_angle stays at its default: nms_distance = 0 alone must keep every pose of step 2's list
+    paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0), None)
+    no_angle = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
     _share_index(paper, localizer)
+    _share_index(no_angle, localizer)
+    same_place_turned = 0
     index = localizer.index
     assert index is not None
+    angle, distance = paper.settings.nms_angle, IRSettings().nms_distance
+    assert angle > 0.0 and distance > 0.0
     for x, y, heading in GRID_POSES:
         pose = np.array([x, y, math.radians(heading)])
         estimate = paper.global_fix(scan_at(world, pose))
         # unrefined: the candidate is a grid pose itself; the true one or a neighbour
         assert close(estimate.candidates[0], pose, 0.15, math.radians(10.5)), (pose, estimate.candidates[:3])
+        # nothing suppressed: the same list as with no angle at all, and it holds the best pose's grid
+        # neighbours (next position or next heading) that the default suppression drops
+        assert np.array_equal(estimate.candidates, no_angle.global_fix(scan_at(world, pose)).candidates)
+        best = estimate.candidates[0]
+        near = np.hypot(*(estimate.candidates[1:, :2] - best[:2]).T) <= distance
+        turn = np.abs(angle_difference(estimate.candidates[1:, 2], best[2]))
+        assert np.any(near & (turn <= angle)), (pose, estimate.candidates[:5])
+        same_place_turned += int(np.any((near & (turn > 0.0) & (turn <= angle))))
+    assert same_place_turned > 0, "no list held a turned neighbour: the test would not see the angle"
+
+
+def test_nms_distance_zero_keeps_every_pose_whatever_the_angle() -> None:
+    # three headings at one position, 5 degrees apart, and one pose 0.1 m away
+    poses = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, math.radians(5.0)], [1.0, 1.0, math.radians(10.0)],
+                      [1.1, 1.0, 0.0]])
+    for angle in (0.0, math.radians(15.0), math.pi):
+        assert suppress_duplicates(poses, distance=0.0, angle=angle, limit=10).tolist() == [0, 1, 2, 3]
+    assert suppress_duplicates(poses, distance=0.0, angle=math.pi, limit=2).tolist() == [0, 1]
+    # with a distance, the angle decides: within 15 degrees of the first -> dropped
+    assert suppress_duplicates(poses, distance=0.3, angle=math.radians(15.0), limit=10).tolist() == [0]
+    assert suppress_duplicates(poses, distance=0.3, angle=math.radians(7.0), limit=10).tolist() == [0, 2]
+    assert suppress_duplicates(poses, distance=0.05, angle=math.radians(7.0), limit=10).tolist() == [0, 2, 3]
 
 
 def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: GridMap, localizer: IRLocalizer) -> None:

@@ -90,7 +90,7 @@ class IRSettings(Settings):
     refine_max_shift: float = setting(0.3, "refinement moves a pose at most this far", unit="m", low=0.0, high=10.0)
     refine_max_turn: float = setting(math.radians(10.0), "refinement turns a pose at most this much", unit="rad",
                                      low=0.0, high=math.pi)
-    nms_distance: float = setting(0.3, "candidates this close to a better one are dropped; 0: keep all", unit="m",
+    nms_distance: float = setting(0.3, "candidates this close to a better one are dropped; 0: keep all, whatever nms_angle", unit="m",
                                   low=0.0, high=100.0)
     nms_angle: float = setting(math.radians(15.0), "... and within this heading", unit="rad", low=0.0, high=math.pi)
     max_candidates: int = setting(100, "candidates returned by an initialisation", low=1, high=10_000_000)
