@@ -216,7 +216,7 @@ def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: 
     no_angle = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
     _share_index(paper, localizer)
     _share_index(no_angle, localizer)
-    same_place_turned = 0
+    turned_neighbours = 0
     index = localizer.index
     assert index is not None
     angle, distance = paper.settings.nms_angle, IRSettings().nms_distance
@@ -233,8 +233,8 @@ def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: 
         near = np.hypot(*(estimate.candidates[1:, :2] - best[:2]).T) <= distance
         turn = np.abs(angle_difference(estimate.candidates[1:, 2], best[2]))
         assert np.any(near & (turn <= angle)), (pose, estimate.candidates[:5])
-        same_place_turned += int(np.any((near & (turn > 0.0) & (turn <= angle))))
-    assert same_place_turned > 0, "no list held a turned neighbour: the test would not see the angle"
+        turned_neighbours += int(np.any(near & (turn > 0.0) & (turn <= angle)))
+    assert turned_neighbours > 0, "no list held a turned neighbour: the test would not see the angle"
 
 
 def test_nms_distance_zero_keeps_every_pose_whatever_the_angle() -> None:
