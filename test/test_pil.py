@@ -182,6 +182,31 @@ def test_candidate_count_shrinks_as_sigma_shrinks(room: GridMap, tmp_path: Path)
     assert counts[-1] < counts[0] / 4
 
 
+def test_min_candidates_zero_keeps_the_passing_tiles_up_to_max_candidates(room: GridMap, tmp_path: Path) -> None:
+    # docs/pil.md: min_candidates 0 drops every tile failing equation (4) but keeps the max_candidates cap
+    truth = np.array([2.5, 2.1, 0.4])
+    wide = {f"{name}_sigma": 0.3 for name in LEVEL_FUNCTION_NAMES}  # many tiles pass
+    paper = {"min_candidates": 0, "refine_candidates": 0, "shift_hypotheses": 1, "coarse_block": 1,
+             "fine_candidates": 100_000, **wide}
+    uncapped = PilLocalizer(_settings(tmp_path, max_candidates=10_000_000, **paper))
+    uncapped.set_map(room)
+    scan = _scan(room, truth)
+    estimate = uncapped.global_fix(scan)
+    passing = estimate.details["filter_count"]
+    assert len(estimate.candidates) == passing and passing > 40
+    image = uncapped.candidate_image
+    assert image is not None and int(image.sum()) == passing
+    capped = PilLocalizer(_settings(tmp_path, max_candidates=passing // 4, **paper))
+    capped.set_map(room)
+    assert len(capped.global_fix(scan).candidates) == passing // 4
+    # with min_candidates > 0 tiles failing equation (4) are added up to min_candidates
+    topped = PilLocalizer(_settings(tmp_path, **{**paper, **{f"{n}_sigma": 0.01 for n in LEVEL_FUNCTION_NAMES},
+                                                 "min_candidates": 30, "max_candidates": 30}))
+    topped.set_map(room)
+    few = topped.global_fix(scan)
+    assert few.details["filter_count"] < 30 and len(few.candidates) == 30
+
+
 def test_the_level_index_scores_a_few_blocks_and_finds_the_same_best_and_passing_tiles() -> None:
     """Spatially smooth level functions (as a map's are) with missing ones: the blocks whose bounds
     cannot hold a best-ranked or passing tile are skipped, and the selection is the full ranking's."""

@@ -81,8 +81,8 @@ class PilSettings(Settings):
     high_quantile_alpha: float = _alpha("high_quantile")
     high_quantile_sigma: float = _sigma("high_quantile", 0.02)
 
-    min_candidates: int = setting(5000, "best-ranked tiles added when fewer pass equation (4); 0: pure filter "
-                                  "(ours)", low=0, high=10_000_000)
+    min_candidates: int = setting(5000, "best-ranked tiles added when fewer pass equation (4); 0: passing tiles "
+                                  "only, still at most max_candidates (ours)", low=0, high=10_000_000)
     max_candidates: int = setting(5000, "most candidate tiles correlated per scan (ours)", low=1, high=10_000_000)
     fine_candidates: int = setting(300, "best (tile, heading) pairs of the coarse correlation taken to the learned "
                                    "angular step (ours)", low=1, high=1_000_000)
