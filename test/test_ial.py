@@ -424,9 +424,21 @@ def test_compose_boxes_is_outward_for_a_laser_mount() -> None:
 
 
 # -- Algorithm 1, end to end ----------------------------------------------------------------------
-def test_the_localizer_satisfies_the_protocols(office) -> None:
-    localizer = IntervalLocalizer(IALSettings(), office)
+def test_updates_wait_for_motion_unless_a_nomotion_update_is_requested(office) -> None:
+    rng = np.random.default_rng(12)
+    localizer = IntervalLocalizer(IALSettings(max_beams=36, update_min_d=0.5, update_min_a=0.5), office)
     assert isinstance(localizer, Localizer) and isinstance(localizer, GlobalFixer)
+    truth = np.array([3.0, 4.5, 0.3])
+    localizer.on_odometry(0.0, np.zeros(3))
+    first = localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.0))
+    assert first is not None and boxes_contain(first.boxes, truth)
+    # no motion since: no update
+    localizer.on_odometry(0.1, np.zeros(3))
+    assert localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.1)) is None
+    localizer.request_nomotion_update()
+    forced = localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.2))
+    assert forced is not None and boxes_contain(forced.boxes, truth)
+    assert localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.3)) is None  # the request was used up
 
 
 def test_a_global_fix_from_one_scan_contains_the_truth_and_ranks_it_first(office) -> None:

@@ -182,6 +182,24 @@ def test_the_two_level_index_links_hits_to_patterns_to_positions(localizer: IRLo
     # every position is a free cell away from walls
     assert np.all(localizer.grid_map.is_free(index.positions))
     assert index.fans.dtype == np.uint8 and index.fans.shape[1] == 180
+    # which patterns a hit links to: every pattern of a position's fan, cut and hashed independently here,
+    # is reached from its hits (level 1) by a pattern stored at that position (level 2), once per occurrence
+    cols = index.pattern_positions.tocsc()
+    checked = 0
+    for p in np.random.default_rng(4).choice(len(index.positions), 25, replace=False):
+        fan = index.fans[p]
+        valid = np.ones(fan.size, dtype=bool)
+        starts, lengths, anchors = extract_runs(fan, valid, cap_code=index.pattern_cap_code,
+                                                jump_codes=index.jump_codes,
+                                                min_len=index.settings.min_pattern_beams, circular=True)
+        at_p = set(cols[:, p].nonzero()[0].tolist())
+        assert cols[:, p].sum() == len(starts), p
+        for terms in pattern_terms(fan, valid, starts, lengths, anchors, per_end=index.settings.pattern_terms_per_end,
+                                   divisor=index.pattern_divisor, circular=True):
+            linked = set.intersection(*(set(hits.row(int(t)).tolist()) for t in terms if t >= 0))
+            assert linked & at_p, (p, terms)
+            checked += 1
+    assert checked > 25
 
 
 # Grid poses (positions on the 10 cm lattice, headings on the 10-degree steps) with a view that tells

@@ -490,9 +490,26 @@ def test_sector_min_beam_mapping_localizes_too(room: GridMap, tmp_path: Path) ->
     assert dxy < 0.2 and dtheta < 0.1
 
 
-def test_pil_offers_the_localizer_and_global_fixer_protocols(learned: PilLocalizer) -> None:
-    assert isinstance(learned, Localizer)
-    assert isinstance(learned, GlobalFixer)
+def test_the_protocol_calls_centre_keep_and_forget_the_window(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, global_candidates=0))
+    assert isinstance(localizer, Localizer) and isinstance(localizer, GlobalFixer)
+    localizer.set_map(room)
+    start, truth = np.array([1.3, 1.2, 0.2]), np.array([1.4, 1.1, 0.3])
+    localizer.set_initial_pose(start, np.eye(3))
+    scan = _scan(room, truth, stamp=1.0)
+    tracked = localizer.on_scan(scan)
+    # set_initial_pose centres the window: every candidate (hard window) inside it, the truth found
+    assert tracked.details["window"] == "window"
+    half = 0.5 * localizer.settings.window_size + localizer.settings.tile_size
+    assert np.all(np.abs(tracked.candidates[:, :2] - start[:2]) <= half)
+    assert _pose_error(tracked.pose, truth)[0] < 0.2
+    # global_fix searches the whole map and leaves the tracking alone
+    assert localizer.global_fix(scan).details["window"] == "whole_map"
+    # PIL updates on every scan: the same scan again, no motion, no request, gives an estimate
+    again = localizer.on_scan(_scan(room, truth, stamp=2.0))
+    assert again is not None and again.details["window"] == "window"
+    localizer.reinitialize()
+    assert localizer.on_scan(_scan(room, truth, stamp=3.0)).details["window"] == "whole_map"
 
 
 def test_the_window_leaves_a_twin_place_once_the_scans_tell_them_apart(tmp_path: Path) -> None:
