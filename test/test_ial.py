@@ -240,6 +240,27 @@ def test_a_slam_style_map_keeps_the_guarantee_with_a_one_cell_margin() -> None:
     assert checked > 300
 
 
+def test_the_laser_cell_constraint_can_be_removed_as_in_the_paper() -> None:
+    # a box of laser positions wholly inside a pillar: refused with the constraint, kept without (paper)
+    data = np.zeros((40, 40), dtype=np.int8)
+    data[:1, :] = data[-1:, :] = data[:, :1] = data[:, -1:] = 100
+    data[15:25, 15:25] = 100  # the pillar: 0.75-1.25 m
+    pillar = GridMap(data, 0.05, (0.0, 0.0))
+    inside = np.array([0.85, 1.15, 0.85, 1.15, 0.0, 0.1])
+    free = np.array([0.2, 0.4, 0.2, 0.4, 0.0, 0.1])
+    none = np.zeros(0)
+    for constraint, kept in ((True, False), (False, True)):
+        grid = ObstacleGrid(pillar, laser_cell_constraint=constraint, laser_in_free_cells=False)
+        for box, expected in ((inside.copy(), kept), (free.copy(), True)):
+            consistent = contract_box(box, none, none, none, 0, grid.sat, grid.free_sat, grid.certain_sat, 9,
+                                      0.0, 0.0, 0.05, 0.0, np.zeros((0, 12)), np.zeros(0, dtype=bool),
+                                      np.zeros((6, 1)))
+            assert (consistent >= 0) is expected, (constraint, box)
+    # the setting reaches the grid
+    localizer = IntervalLocalizer(IALSettings(laser_cell_constraint=False), pillar)
+    assert localizer.obstacles is not None and localizer.obstacles.free_sat[-1, -1] == data.size
+
+
 def _slam_params(**overrides) -> IALSettings:
     """config/ial_localizer_slam.yaml, as rls_bench reads it for the real logs, with ``overrides``."""
     _, settings = registry.plugin("ial_localizer").load_settings(
