@@ -207,6 +207,32 @@ def test_min_candidates_zero_keeps_the_passing_tiles_up_to_max_candidates(room: 
     assert few.details["filter_count"] < 30 and len(few.candidates) == 30
 
 
+def test_match_score_correlation_picks_the_candidate_of_highest_distance_profile_correlation(
+    room: GridMap, tmp_path: Path
+) -> None:
+    # paper 2.5: the chosen candidate maximises the correlation of D_r and D_s; reported as 1 - mean(D_r D_s) / R^2
+    truth = np.array([2.5, 2.1, 0.4])
+    scan = _scan(room, truth)
+    ours = PilLocalizer(_settings(tmp_path, refine_candidates=0))
+    ours.set_map(room)
+    assert ours.global_fix(scan).details["best_score"] < 0.02  # truncated difference: a perfect match is ~0
+    paper = PilLocalizer(_settings(tmp_path, refine_candidates=0, match_score="correlation", lost_score=1.0))
+    paper.set_map(room)
+    estimate = paper.global_fix(scan)
+    profile = paper._live_profile(scan)
+
+    def correlation(poses: np.ndarray) -> np.ndarray:
+        codes = paper._pose_codes(poses, profile)
+        use = profile.valid[None, :] & (codes < 255)
+        return np.where(use, (1.0 - profile.intensities)[None, :] * codes / 254.0, 0.0).sum(axis=1) / use.sum(axis=1)
+
+    values = correlation(estimate.candidates)
+    # the independent correlation at the chosen pose is the reported score, and no candidate correlates better
+    assert estimate.details["best_score"] == pytest.approx(1.0 - values[0], abs=2e-3)
+    assert values.max() <= values[0] + 2e-3
+    assert estimate.details["best_score"] > 0.5
+
+
 def test_the_level_index_scores_a_few_blocks_and_finds_the_same_best_and_passing_tiles() -> None:
     """Spatially smooth level functions (as a map's are) with missing ones: the blocks whose bounds
     cannot hold a best-ranked or passing tile are skipped, and the selection is the full ranking's."""

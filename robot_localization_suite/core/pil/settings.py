@@ -12,9 +12,10 @@ from dataclasses import dataclass
 from ..errors import SettingsError
 from ..settings import Settings, setting
 
-__all__ = ["PilSettings", "BEAM_MAPPINGS", "LEVEL_FUNCTION_NAMES"]
+__all__ = ["PilSettings", "BEAM_MAPPINGS", "LEVEL_FUNCTION_NAMES", "MATCH_SCORES"]
 
 BEAM_MAPPINGS = ("nearest", "sector_min")
+MATCH_SCORES = ("truncated_difference", "correlation")
 LEVEL_FUNCTION_NAMES = ("energy", "pq", "harmonic1", "harmonic2", "low_quantile", "high_quantile")
 _BIG = 1e6
 
@@ -99,6 +100,10 @@ class PilSettings(Settings):
     global_switch_margin: float = setting(0.05, "a tile outside the window wins once its accumulated score "
                                           "advantage exceeds this (ours)", low=0.0, high=1.0)
 
+    match_score: str = setting("truncated_difference", "score that ranks the candidates: the normalised truncated "
+                               "squared difference of the profiles (ours), or the correlation of the distance "
+                               "profiles, highest first (paper 2.5; reported as 1 - sum D_r D_s / (N R^2))",
+                               choices=MATCH_SCORES)
     score_truncation: float = setting(0.1, "tau of the truncated squared profile difference (ours)", unit="intensity",
                                       low=0.0, low_open=True, high=1.0)
     unknown_cost: float = setting(0.5, "cost of a sensor whose learned ray is unknown, between a match (0) and a "
