@@ -268,6 +268,25 @@ def test_nms_distance_zero_keeps_every_pose_whatever_the_angle() -> None:
     assert suppress_duplicates(poses, distance=0.05, angle=math.radians(7.0), limit=10).tolist() == [0, 2, 3]
 
 
+@pytest.mark.parametrize("initial_particles", ["one_per_candidate", "rank"])
+def test_an_initialisation_puts_one_particle_on_each_candidate_or_draws_them_by_rank(
+    world: GridMap, localizer: IRLocalizer, initial_particles: str
+) -> None:
+    count = 40
+    ir = IRLocalizer(settings(initial_particles=initial_particles, particle_count=count, max_candidates=count), None)
+    _share_index(ir, localizer)
+    x, y, heading = GRID_POSES[2]
+    estimate = ir.on_scan(scan_at(world, np.array([x, y, math.radians(heading)])))
+    assert estimate is not None and ir.particles is not None and len(estimate.candidates) == count
+    on = [int(np.sum(np.all(np.isclose(ir.particles, c), axis=1))) for c in estimate.candidates]
+    if initial_particles == "one_per_candidate":
+        assert on == [1] * count  # paper IV-D: each found pose is a particle, no copies
+    else:
+        assert on[0] == 1 and sum(on) < count  # the first is drawn several times, its copies spread
+        spread = np.hypot(*(ir.particles[:, :2] - estimate.candidates[0, :2]).T) <= 0.5 * ir.index.grid_step * 1.5
+        assert spread.sum() > 3
+
+
 def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: GridMap, localizer: IRLocalizer) -> None:
     # continuous poses, 2 cm range noise; correct = 0.5 m and 25 degrees (the paper's criterion)
     rng = np.random.default_rng(7)

@@ -98,6 +98,10 @@ class IRSettings(Settings):
                                       "this many positions; 0: no candidates (paper)", low=0, high=10_000_000)
     # tracking (IV-C, IV-D)
     particle_count: int = setting(100, "particles tracked after an initialisation (paper 100)", low=1, high=10_000_000)
+    initial_particles: str = setting("rank", "particles of an initialisation: drawn from the candidates with "
+                                     "probability 1 / rank (ours), or one per candidate, in rank order and again "
+                                     "from the first when there are fewer candidates than particles (paper IV-D)",
+                                     choices=("rank", "one_per_candidate"))
     update_min_d: float = setting(1.0, "translation before a filter update (paper 1 m)", unit="m", low=0.0, high=1e3)
     update_min_a: float = setting(math.radians(20.0), "rotation before a filter update (paper 20 deg)", unit="rad",
                                   low=0.0, high=7.0)
