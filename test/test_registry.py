@@ -32,7 +32,8 @@ PLUGIN_NAMES = sorted(registry.PLUGINS)
 # Every packaged params file: config/<name>.yaml and the ones the benchmark reads for some bags.
 PARAMS_FILES = [(name, plugin.params_file().name) for name, plugin in sorted(registry.PLUGINS.items())] + [
     (name, file) for name, plugin in sorted(registry.PLUGINS.items()) for file in sorted(set(plugin.bench_params.values()))
-]
+] + [(name, f"{name}_paper.yaml") for name in sorted(registry.PLUGINS)
+     if (registry.config_dir() / f"{name}_paper.yaml").is_file()]  # the paper profiles (rls_bench --profile paper)
 
 
 @pytest.mark.parametrize(("name", "file"), PARAMS_FILES)
