@@ -16,6 +16,7 @@ import pytest
 from echo_localizer import EchoLocalizer
 from tqdm import tqdm
 
+from robot_localization_suite import registry
 from robot_localization_suite.core import metrics
 from robot_localization_suite.core.errors import SettingsError
 from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
@@ -547,6 +548,32 @@ def test_an_override_naming_no_parameter_is_refused_before_anything_runs():
     with pytest.raises(SettingsError, match="mcl_baseline has no parameter 'alpha_1'"):
         bench.registry_spec("mcl_baseline", {"alpha_1": 0.1})
     assert bench.registry_spec("mcl_baseline", {"alpha1": 0.1, "laser_x": 0.2}).mount.x == 0.2
+
+
+def test_a_params_file_or_the_paper_profile_replaces_the_packaged_and_per_bag_files(kidnap_bag, tmp_path, capsys):
+    paper = bench.registry_spec("ir_initializer", {"seed": 3},
+                                params_file=registry.config_dir() / "ir_initializer_paper.yaml")
+    settings = paper.factory.args[1]
+    assert (settings.nms_distance, settings.refine_candidates, settings.initial_particles) == (0.0, 0, "one_per_candidate")
+    assert settings.seed == 3 and paper.params == "ir_initializer_paper.yaml"  # --set still on top
+    assert bench.registry_spec("ir_initializer").factory.args[1].initial_particles == "rank"
+    ial = bench.registry_spec("ial_localizer", params_file=registry.config_dir() / "ial_localizer_paper.yaml")
+    assert ial.for_bag("intel") is ial and not ial.factory.args[1].laser_cell_constraint  # no per-bag file
+    pil = bench.registry_spec("pil_localizer", params_file=registry.config_dir() / "pil_localizer_paper.yaml")
+    assert pil.factory.args[1].match_score == "correlation"
+    own = tmp_path / "mine.yaml"
+    own.write_text("mcl_baseline:\n  ros__parameters:\n    max_particles: 777\n")
+    assert bench.registry_spec("mcl_baseline", params_file=own).factory.args[1].max_particles == 777
+    path, _ = kidnap_bag
+    # mcl_baseline is no paper's method: no profile file, refused naming it
+    assert bench.main([str(path), "--localizers", "mcl_baseline", "--profile", "paper", "--out", str(tmp_path)]) == 1
+    assert "mcl_baseline_paper.yaml" in capsys.readouterr().err
+    assert bench.main([str(path), "--localizers", "mcl_baseline", "--params-file", "mcl_baseline=none.yaml",
+                       "--out", str(tmp_path)]) == 1
+    assert "none.yaml" in capsys.readouterr().err
+    assert bench.main([str(path), "--localizers", "mcl_baseline", "--params-file", "ir_initializer=" + str(own),
+                       "--out", str(tmp_path)]) == 1
+    assert "not run" in capsys.readouterr().err
 
 
 # -- world events: a map change and a reinitialization request mid-bag ---------------------------------

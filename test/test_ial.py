@@ -240,6 +240,27 @@ def test_a_slam_style_map_keeps_the_guarantee_with_a_one_cell_margin() -> None:
     assert checked > 300
 
 
+def test_the_laser_cell_constraint_can_be_removed_as_in_the_paper() -> None:
+    # a box of laser positions wholly inside a pillar: refused with the constraint, kept without (paper)
+    data = np.zeros((40, 40), dtype=np.int8)
+    data[:1, :] = data[-1:, :] = data[:, :1] = data[:, -1:] = 100
+    data[15:25, 15:25] = 100  # the pillar: 0.75-1.25 m
+    pillar = GridMap(data, 0.05, (0.0, 0.0))
+    inside = np.array([0.85, 1.15, 0.85, 1.15, 0.0, 0.1])
+    free = np.array([0.2, 0.4, 0.2, 0.4, 0.0, 0.1])
+    none = np.zeros(0)
+    for constraint, kept in ((True, False), (False, True)):
+        grid = ObstacleGrid(pillar, laser_cell_constraint=constraint, laser_in_free_cells=False)
+        for box, expected in ((inside.copy(), kept), (free.copy(), True)):
+            consistent = contract_box(box, none, none, none, 0, grid.sat, grid.free_sat, grid.certain_sat, 9,
+                                      0.0, 0.0, 0.05, 0.0, np.zeros((0, 12)), np.zeros(0, dtype=bool),
+                                      np.zeros((6, 1)))
+            assert (consistent >= 0) is expected, (constraint, box)
+    # the setting reaches the grid
+    localizer = IntervalLocalizer(IALSettings(laser_cell_constraint=False), pillar)
+    assert localizer.obstacles is not None and localizer.obstacles.free_sat[-1, -1] == data.size
+
+
 def _slam_params(**overrides) -> IALSettings:
     """config/ial_localizer_slam.yaml, as rls_bench reads it for the real logs, with ``overrides``."""
     _, settings = registry.plugin("ial_localizer").load_settings(
@@ -424,9 +445,21 @@ def test_compose_boxes_is_outward_for_a_laser_mount() -> None:
 
 
 # -- Algorithm 1, end to end ----------------------------------------------------------------------
-def test_the_localizer_satisfies_the_protocols(office) -> None:
-    localizer = IntervalLocalizer(IALSettings(), office)
+def test_updates_wait_for_motion_unless_a_nomotion_update_is_requested(office) -> None:
+    rng = np.random.default_rng(12)
+    localizer = IntervalLocalizer(IALSettings(max_beams=36, update_min_d=0.5, update_min_a=0.5), office)
     assert isinstance(localizer, Localizer) and isinstance(localizer, GlobalFixer)
+    truth = np.array([3.0, 4.5, 0.3])
+    localizer.on_odometry(0.0, np.zeros(3))
+    first = localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.0))
+    assert first is not None and boxes_contain(first.boxes, truth)
+    # no motion since: no update
+    localizer.on_odometry(0.1, np.zeros(3))
+    assert localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.1)) is None
+    localizer.request_nomotion_update()
+    forced = localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.2))
+    assert forced is not None and boxes_contain(forced.boxes, truth)
+    assert localizer.on_scan(bounded_scan(office, truth, rng, stamp=0.3)) is None  # the request was used up
 
 
 def test_a_global_fix_from_one_scan_contains_the_truth_and_ranks_it_first(office) -> None:

@@ -32,7 +32,7 @@ from robot_localization_suite.core.ir.index import (
 )
 from robot_localization_suite.core.ir.localizer import IRLocalizer, IRSettings
 from robot_localization_suite.core.ir.patterns import NO_RETURN, extract_runs, pattern_terms
-from robot_localization_suite.core.ir.query import LiveScan, step2_poses
+from robot_localization_suite.core.ir.query import LiveScan, step2_poses, suppress_duplicates
 from robot_localization_suite.core.localizer import GlobalFixer, Localizer, LocalizerStatus
 from robot_localization_suite.core.metrics import recall_at_k
 from robot_localization_suite.core.raycast import RayCaster
@@ -182,6 +182,24 @@ def test_the_two_level_index_links_hits_to_patterns_to_positions(localizer: IRLo
     # every position is a free cell away from walls
     assert np.all(localizer.grid_map.is_free(index.positions))
     assert index.fans.dtype == np.uint8 and index.fans.shape[1] == 180
+    # which patterns a hit links to: every pattern of a position's fan, cut and hashed independently here,
+    # is reached from its hits (level 1) by a pattern stored at that position (level 2), once per occurrence
+    cols = index.pattern_positions.tocsc()
+    checked = 0
+    for p in np.random.default_rng(4).choice(len(index.positions), 25, replace=False):
+        fan = index.fans[p]
+        valid = np.ones(fan.size, dtype=bool)
+        starts, lengths, anchors = extract_runs(fan, valid, cap_code=index.pattern_cap_code,
+                                                jump_codes=index.jump_codes,
+                                                min_len=index.settings.min_pattern_beams, circular=True)
+        at_p = set(cols[:, p].nonzero()[0].tolist())
+        assert cols[:, p].sum() == len(starts), p
+        for terms in pattern_terms(fan, valid, starts, lengths, anchors, per_end=index.settings.pattern_terms_per_end,
+                                   divisor=index.pattern_divisor, circular=True):
+            linked = set.intersection(*(set(hits.row(int(t)).tolist()) for t in terms if t >= 0))
+            assert linked & at_p, (p, terms)
+            checked += 1
+    assert checked > 25
 
 
 # Grid poses (positions on the 10 cm lattice, headings on the 10-degree steps) with a view that tells
@@ -211,15 +229,62 @@ def test_a_noise_free_scan_at_a_grid_pose_comes_back_top_1(world: GridMap, local
 
 
 def test_the_papers_ranking_alone_also_puts_a_noise_free_grid_pose_first(world: GridMap, localizer: IRLocalizer) -> None:
-    paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
+    # nms_angle stays at its default: nms_distance = 0 alone must keep every pose of step 2's list
+    paper = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0), None)
+    no_angle = IRLocalizer(settings(refine_candidates=0, nms_distance=0.0, nms_angle=0.0), None)
     _share_index(paper, localizer)
+    _share_index(no_angle, localizer)
+    turned_neighbours = 0
     index = localizer.index
     assert index is not None
+    angle, distance = paper.settings.nms_angle, IRSettings().nms_distance
+    assert angle > 0.0 and distance > 0.0
     for x, y, heading in GRID_POSES:
         pose = np.array([x, y, math.radians(heading)])
         estimate = paper.global_fix(scan_at(world, pose))
         # unrefined: the candidate is a grid pose itself; the true one or a neighbour
         assert close(estimate.candidates[0], pose, 0.15, math.radians(10.5)), (pose, estimate.candidates[:3])
+        # nothing suppressed: the same list as with no angle at all, and it holds the best pose's grid
+        # neighbours (next position or next heading) that the default suppression drops
+        assert np.array_equal(estimate.candidates, no_angle.global_fix(scan_at(world, pose)).candidates)
+        best = estimate.candidates[0]
+        near = np.hypot(*(estimate.candidates[1:, :2] - best[:2]).T) <= distance
+        turn = np.abs(angle_difference(estimate.candidates[1:, 2], best[2]))
+        assert np.any(near & (turn <= angle)), (pose, estimate.candidates[:5])
+        turned_neighbours += int(np.any(near & (turn > 0.0) & (turn <= angle)))
+    assert turned_neighbours > 0, "no list held a turned neighbour: the test would not see the angle"
+
+
+def test_nms_distance_zero_keeps_every_pose_whatever_the_angle() -> None:
+    # three headings at one position, 5 degrees apart, and one pose 0.1 m away
+    poses = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, math.radians(5.0)], [1.0, 1.0, math.radians(10.0)],
+                      [1.1, 1.0, 0.0]])
+    for angle in (0.0, math.radians(15.0), math.pi):
+        assert suppress_duplicates(poses, distance=0.0, angle=angle, limit=10).tolist() == [0, 1, 2, 3]
+    assert suppress_duplicates(poses, distance=0.0, angle=math.pi, limit=2).tolist() == [0, 1]
+    # with a distance, the angle decides: within 15 degrees of the first -> dropped
+    assert suppress_duplicates(poses, distance=0.3, angle=math.radians(15.0), limit=10).tolist() == [0]
+    assert suppress_duplicates(poses, distance=0.3, angle=math.radians(7.0), limit=10).tolist() == [0, 2]
+    assert suppress_duplicates(poses, distance=0.05, angle=math.radians(7.0), limit=10).tolist() == [0, 2, 3]
+
+
+@pytest.mark.parametrize("initial_particles", ["one_per_candidate", "rank"])
+def test_an_initialisation_puts_one_particle_on_each_candidate_or_draws_them_by_rank(
+    world: GridMap, localizer: IRLocalizer, initial_particles: str
+) -> None:
+    count = 40
+    ir = IRLocalizer(settings(initial_particles=initial_particles, particle_count=count, max_candidates=count), None)
+    _share_index(ir, localizer)
+    x, y, heading = GRID_POSES[2]
+    estimate = ir.on_scan(scan_at(world, np.array([x, y, math.radians(heading)])))
+    assert estimate is not None and ir.particles is not None and len(estimate.candidates) == count
+    on = [int(np.sum(np.all(np.isclose(ir.particles, c), axis=1))) for c in estimate.candidates]
+    if initial_particles == "one_per_candidate":
+        assert on == [1] * count  # paper IV-D: each found pose is a particle, no copies
+    else:
+        assert on[0] == 1 and sum(on) < count  # the first is drawn several times, its copies spread
+        spread = np.hypot(*(ir.particles[:, :2] - estimate.candidates[0, :2]).T) <= 0.5 * ir.index.grid_step * 1.5
+        assert spread.sum() > 3
 
 
 def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: GridMap, localizer: IRLocalizer) -> None:

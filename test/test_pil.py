@@ -182,6 +182,57 @@ def test_candidate_count_shrinks_as_sigma_shrinks(room: GridMap, tmp_path: Path)
     assert counts[-1] < counts[0] / 4
 
 
+def test_min_candidates_zero_keeps_the_passing_tiles_up_to_max_candidates(room: GridMap, tmp_path: Path) -> None:
+    # docs/pil.md: min_candidates 0 drops every tile failing equation (4) but keeps the max_candidates cap
+    truth = np.array([2.5, 2.1, 0.4])
+    wide = {f"{name}_sigma": 0.3 for name in LEVEL_FUNCTION_NAMES}  # many tiles pass
+    paper = {"min_candidates": 0, "refine_candidates": 0, "shift_hypotheses": 1, "coarse_block": 1,
+             "fine_candidates": 100_000, **wide}
+    uncapped = PilLocalizer(_settings(tmp_path, max_candidates=10_000_000, **paper))
+    uncapped.set_map(room)
+    scan = _scan(room, truth)
+    estimate = uncapped.global_fix(scan)
+    passing = estimate.details["filter_count"]
+    assert len(estimate.candidates) == passing and passing > 40
+    image = uncapped.candidate_image
+    assert image is not None and int(image.sum()) == passing
+    capped = PilLocalizer(_settings(tmp_path, max_candidates=passing // 4, **paper))
+    capped.set_map(room)
+    assert len(capped.global_fix(scan).candidates) == passing // 4
+    # with min_candidates > 0 tiles failing equation (4) are added up to min_candidates
+    topped = PilLocalizer(_settings(tmp_path, **{**paper, **{f"{n}_sigma": 0.01 for n in LEVEL_FUNCTION_NAMES},
+                                                 "min_candidates": 30, "max_candidates": 30}))
+    topped.set_map(room)
+    few = topped.global_fix(scan)
+    assert few.details["filter_count"] < 30 and len(few.candidates) == 30
+
+
+def test_match_score_correlation_picks_the_candidate_of_highest_distance_profile_correlation(
+    room: GridMap, tmp_path: Path
+) -> None:
+    # paper 2.5: the chosen candidate maximises the correlation of D_r and D_s; reported as 1 - mean(D_r D_s) / R^2
+    truth = np.array([2.5, 2.1, 0.4])
+    scan = _scan(room, truth)
+    ours = PilLocalizer(_settings(tmp_path, refine_candidates=0))
+    ours.set_map(room)
+    assert ours.global_fix(scan).details["best_score"] < 0.02  # truncated difference: a perfect match is ~0
+    paper = PilLocalizer(_settings(tmp_path, refine_candidates=0, match_score="correlation", lost_score=1.0))
+    paper.set_map(room)
+    estimate = paper.global_fix(scan)
+    profile = paper._live_profile(scan)
+
+    def correlation(poses: np.ndarray) -> np.ndarray:
+        codes = paper._pose_codes(poses, profile)
+        use = profile.valid[None, :] & (codes < 255)
+        return np.where(use, (1.0 - profile.intensities)[None, :] * codes / 254.0, 0.0).sum(axis=1) / use.sum(axis=1)
+
+    values = correlation(estimate.candidates)
+    # the independent correlation at the chosen pose is the reported score, and no candidate correlates better
+    assert estimate.details["best_score"] == pytest.approx(1.0 - values[0], abs=2e-3)
+    assert values.max() <= values[0] + 2e-3
+    assert estimate.details["best_score"] > 0.5
+
+
 def test_the_level_index_scores_a_few_blocks_and_finds_the_same_best_and_passing_tiles() -> None:
     """Spatially smooth level functions (as a map's are) with missing ones: the blocks whose bounds
     cannot hold a best-ranked or passing tile are skipped, and the selection is the full ranking's."""
@@ -465,9 +516,26 @@ def test_sector_min_beam_mapping_localizes_too(room: GridMap, tmp_path: Path) ->
     assert dxy < 0.2 and dtheta < 0.1
 
 
-def test_pil_offers_the_localizer_and_global_fixer_protocols(learned: PilLocalizer) -> None:
-    assert isinstance(learned, Localizer)
-    assert isinstance(learned, GlobalFixer)
+def test_the_protocol_calls_centre_keep_and_forget_the_window(room: GridMap, tmp_path: Path) -> None:
+    localizer = PilLocalizer(_settings(tmp_path, global_candidates=0))
+    assert isinstance(localizer, Localizer) and isinstance(localizer, GlobalFixer)
+    localizer.set_map(room)
+    start, truth = np.array([1.3, 1.2, 0.2]), np.array([1.4, 1.1, 0.3])
+    localizer.set_initial_pose(start, np.eye(3))
+    scan = _scan(room, truth, stamp=1.0)
+    tracked = localizer.on_scan(scan)
+    # set_initial_pose centres the window: every candidate (hard window) inside it, the truth found
+    assert tracked.details["window"] == "window"
+    half = 0.5 * localizer.settings.window_size + localizer.settings.tile_size
+    assert np.all(np.abs(tracked.candidates[:, :2] - start[:2]) <= half)
+    assert _pose_error(tracked.pose, truth)[0] < 0.2
+    # global_fix searches the whole map and leaves the tracking alone
+    assert localizer.global_fix(scan).details["window"] == "whole_map"
+    # PIL updates on every scan: the same scan again, no motion, no request, gives an estimate
+    again = localizer.on_scan(_scan(room, truth, stamp=2.0))
+    assert again is not None and again.details["window"] == "window"
+    localizer.reinitialize()
+    assert localizer.on_scan(_scan(room, truth, stamp=3.0)).details["window"] == "whole_map"
 
 
 def test_the_window_leaves_a_twin_place_once_the_scans_tell_them_apart(tmp_path: Path) -> None:

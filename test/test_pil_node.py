@@ -104,8 +104,20 @@ def test_the_node_declares_every_parameter_and_builds_pil(tmp_path: Path) -> Non
             assert isinstance(node.localizer, PilLocalizer)
             assert node.localizer.settings.field_of_view == pytest.approx(math.radians(240.0))
             assert node.localizer.settings.cache_dir == str(tmp_path)
+            # every parameter reaches PIL: the overridden ones with their value, the others at the default
+            assert node.localizer.settings == replace(
+                PilSettings(), field_of_view=math.radians(240.0), cache_dir=str(tmp_path), show_progress=False)
+            overridden = {"cache_dir", "field_of_view_deg", "show_progress"}
             for param in parameters(PilSettings):
                 assert node.has_parameter(param.name), param.name
+                if param.name not in overridden:
+                    assert node.get_parameter(param.name).value == param.default, param.name
+                # and is declared with its description and range (shown by `ros2 param describe`)
+                described = node.describe_parameter(param.name)
+                assert param.setting.doc in described.description, param.name
+                if param.kind is float and param.high is not None:
+                    (bounds,) = described.floating_point_range
+                    assert (bounds.from_value, bounds.to_value) == pytest.approx((param.low, param.high)), param.name
             assert node.get_parameter("field_of_view_deg").value == 240.0
         finally:
             node.destroy_node()

@@ -6,6 +6,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -31,7 +32,8 @@ PLUGIN_NAMES = sorted(registry.PLUGINS)
 # Every packaged params file: config/<name>.yaml and the ones the benchmark reads for some bags.
 PARAMS_FILES = [(name, plugin.params_file().name) for name, plugin in sorted(registry.PLUGINS.items())] + [
     (name, file) for name, plugin in sorted(registry.PLUGINS.items()) for file in sorted(set(plugin.bench_params.values()))
-]
+] + [(name, f"{name}_paper.yaml") for name in sorted(registry.PLUGINS)
+     if (registry.config_dir() / f"{name}_paper.yaml").is_file()]  # the paper profiles (rls_bench --profile paper)
 
 
 @pytest.mark.parametrize(("name", "file"), PARAMS_FILES)
@@ -75,15 +77,67 @@ def test_every_parameter_has_a_description_and_a_value_beyond_its_range_is_refus
     for param in parameters(plugin.settings):
         assert param.setting.doc, param.name
         if param.kind in (int, float) and param.high is not None:
-            beyond = param.high + (1 if param.kind is int else abs(param.high) * 0.5 + 1.0)
             expected = f"parameter {param.name} must be in {param.range_text()}"
-            with pytest.raises(SettingsError, match=re.escape(expected)):
-                from_params(plugin.settings, {param.name: param.kind(beyond)})
+            for beyond in _beyond(param):
+                with pytest.raises(SettingsError, match=re.escape(expected)):
+                    from_params(plugin.settings, {param.name: beyond})
             checked += 1
         if param.setting.choices:
             with pytest.raises(SettingsError, match=rf"parameter {param.name} must be one of"):
                 from_params(plugin.settings, {param.name: "no_such_choice"})
     assert checked > 5
+
+
+def _beyond(param: Any) -> list[Any]:
+    """A value above the high bound and, when there is one, below the low bound (ROS units)."""
+    step = 1 if param.kind is int else abs(param.high) * 0.5 + 1.0
+    values = [param.kind(param.high + step)]
+    if param.low is not None:
+        values.append(param.kind(param.low - (1 if param.kind is int else abs(param.low) * 0.5 + 1.0)))
+    return values
+
+
+@pytest.mark.parametrize("name", PLUGIN_NAMES)
+def test_the_running_node_refuses_an_out_of_range_value_naming_the_range_and_keeps_the_old_one(name: str) -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    plugin = registry.plugin(name)
+    ranged = [p for p in parameters(plugin.settings)
+              if p.kind in (int, float) and p.high is not None and not p.setting.read_only]
+    assert ranged, name
+    rclpy.init(args=[name])
+    try:
+        node = LocalizerNode(plugin)
+        try:
+            for param in ranged:
+                before = node.get_parameter(param.name).value
+                for beyond in _beyond(param):
+                    result = node.set_parameters([Parameter(param.name, value=beyond)])[0]
+                    assert not result.successful, (param.name, beyond)
+                    # ours, or rclpy's own check of the declared descriptor range, which comes first
+                    ours = f"parameter {param.name} must be in {param.range_text()}"
+                    theirs = (rf"Parameter {re.escape(param.name)} out of range\.? Min: "
+                              rf"{re.escape(str(param.kind(param.low)))}, Max: {re.escape(str(param.kind(param.high)))},")
+                    assert ours in result.reason or re.search(theirs, result.reason), result.reason
+                    assert node.get_parameter(param.name).value == before
+            # an open bound itself passes rclpy's closed descriptor range and is refused by the settings
+            for param in [p for p in ranged if p.setting.low_open and p.low is not None][:3]:
+                result = node.set_parameters([Parameter(param.name, value=param.kind(param.low))])[0]
+                assert not result.successful
+                assert f"parameter {param.name} must be in {param.range_text()}" in result.reason, result.reason
+            # and a value inside the range is taken
+            param = ranged[0]
+            inside = param.kind(param.low if param.low is not None and not param.setting.low_open else param.high
+                                if not param.setting.high_open else (param.low + param.high) / 2)
+            assert node.set_parameters([Parameter(param.name, value=inside)])[0].successful, param.name
+            assert node.get_parameter(param.name).value == inside
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
 
 
 def test_a_nav2_amcl_section_carries_over_and_lists_what_is_not_used() -> None:

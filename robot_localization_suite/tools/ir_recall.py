@@ -86,8 +86,8 @@ def evaluate(
     variants = {
         "final, idf": settings,
         "final, no idf": replace(settings, use_idf=False),
-        "paper, idf": replace(settings, refine_candidates=0, nms_distance=0.0, nms_angle=0.0),
-        "paper, no idf": replace(settings, refine_candidates=0, nms_distance=0.0, nms_angle=0.0, use_idf=False),
+        "paper, idf": replace(settings, refine_candidates=0, nms_distance=0.0),
+        "paper, no idf": replace(settings, refine_candidates=0, nms_distance=0.0, use_idf=False),
     }
     start = time.perf_counter()
     main_fixer = IRGlobalFixer(settings)

@@ -77,6 +77,7 @@ class ObstacleGrid:
         margin: float = 0.0,
         laser_in_free_cells: bool = True,
         unknown_is_obstacle: bool = True,
+        laser_cell_constraint: bool = True,
     ) -> None:
         x_min, x_max, y_min, y_max = grid_map.extent
         if max(abs(x_min), abs(x_max), abs(y_min), abs(y_max)) > MAX_COORDINATE:
@@ -93,8 +94,12 @@ class ObstacleGrid:
         if not unknown_is_obstacle:
             self.obstacle = grid_map.occupied_mask
         self.sat = self.sat_any if unknown_is_obstacle else summed_area_table(self.obstacle)
-        # Where the laser may stand: free cells, or any cell not marked occupied.
-        self.free_sat = summed_area_table(grid_map.free_mask if laser_in_free_cells else ~grid_map.occupied_mask)
+        # Where the laser may stand: free cells, or any cell not marked occupied, or (the paper) any cell.
+        if not laser_cell_constraint:
+            stand = np.ones(grid_map.occupied_mask.shape, dtype=bool)
+        else:
+            stand = grid_map.free_mask if laser_in_free_cells else ~grid_map.occupied_mask
+        self.free_sat = summed_area_table(stand)
         # Cells surely inside an obstacle: occupied cells eroded by twice the map margin.
         occupied = grid_map.occupied_mask
         erosion = int(math.ceil(2.0 * margin / self.resolution - 1e-9)) if margin > 0.0 else 0
@@ -244,6 +249,7 @@ class IntervalLocalizer:
             margin=self.settings.map_margin,
             laser_in_free_cells=self.settings.laser_in_free_cells,
             unknown_is_obstacle=self.settings.unknown_is_obstacle,
+            laser_cell_constraint=self.settings.laser_cell_constraint,
         )
         self.reinitialize()
 

@@ -39,6 +39,9 @@ class IALSettings(Settings):
                                         "max_outliers (an assumption; docs/ial.md) (ours)", read_only=True)
     laser_in_free_cells: bool = setting(True, "the laser stands in a cell the map marks free; false: in any cell not "
                                         "marked occupied (ours)", read_only=True)
+    laser_cell_constraint: bool = setting(True, "contract [x] x [y] to the cells the laser may stand in "
+                                          "(laser_in_free_cells); false: no such constraint, any cell, occupied ones "
+                                          "too (paper) (ours)", read_only=True)
     odom_relative_translation: float = setting(0.1, "odometry bound: translation error per step, relative part "
                                                "(paper 5.2: 0.1)", low=0.0, high=0.99)
     odom_absolute_translation: float = setting(0.01, "odometry bound: translation error per step, absolute part",

@@ -154,11 +154,14 @@ class IRLocalizer:
         estimate = replace(estimate, details={**estimate.details, "initialized_because": reason})
         count = self.settings.particle_count
         candidates = estimate.candidates
-        # Drawn from the ranked list with probability 1 / rank (the ranking is the evidence: the first
-        # candidate gets about a fifth of 100 particles, the hundredth one at most one); copies are spread
-        # over half a grid cell and half a heading step so that they explore the hypothesis.
-        rank_prior = 1.0 / np.arange(1, len(candidates) + 1)
-        drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
+        # One per candidate (the paper), or drawn from the ranked list with probability 1 / rank (the ranking
+        # is the evidence: the first candidate gets about a fifth of 100 particles, the hundredth one at most
+        # one); copies are spread over half a grid cell and half a heading step so that they explore it.
+        if self.settings.initial_particles == "one_per_candidate":
+            drawn = np.sort(np.arange(count) % len(candidates))
+        else:
+            rank_prior = 1.0 / np.arange(1, len(candidates) + 1)
+            drawn = np.sort(low_variance_resample(rank_prior, count, self._rng))
         particles = candidates[drawn].copy()
         copies = np.concatenate([[False], drawn[1:] == drawn[:-1]])
         step = self.index.grid_step if self.index is not None else self.settings.grid_resolution

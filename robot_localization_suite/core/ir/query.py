@@ -402,10 +402,13 @@ def _suppress(poses, distance2, angle, limit):
 def suppress_duplicates(
     poses: NDArray[np.float64], *, distance: float, angle: float, limit: int
 ) -> NDArray[np.int64]:
-    """Greedy non-maximum suppression of poses ranked best first: indices of the kept ones (at most ``limit``)."""
+    """Greedy non-maximum suppression of poses ranked best first: indices of the kept ones (at most ``limit``).
+
+    ``distance`` 0 keeps every pose whatever ``angle`` is (the paper's list, docs/ir.md); otherwise a pose within
+    ``distance`` and ``angle`` of a kept one is dropped."""
     if len(poses) == 0:
         return np.zeros(0, dtype=np.int64)
-    if distance <= 0.0 and angle <= 0.0:
+    if distance <= 0.0:
         return np.arange(min(limit, len(poses)))
     return _suppress(np.ascontiguousarray(poses, dtype=np.float64), distance * distance, angle, limit)
 

@@ -90,7 +90,7 @@ class IRSettings(Settings):
     refine_max_shift: float = setting(0.3, "refinement moves a pose at most this far", unit="m", low=0.0, high=10.0)
     refine_max_turn: float = setting(math.radians(10.0), "refinement turns a pose at most this much", unit="rad",
                                      low=0.0, high=math.pi)
-    nms_distance: float = setting(0.3, "candidates this close to a better one are dropped; 0: keep all", unit="m",
+    nms_distance: float = setting(0.3, "candidates this close to a better one are dropped; 0: keep all, whatever nms_angle", unit="m",
                                   low=0.0, high=100.0)
     nms_angle: float = setting(math.radians(15.0), "... and within this heading", unit="rad", low=0.0, high=math.pi)
     max_candidates: int = setting(100, "candidates returned by an initialisation", low=1, high=10_000_000)
@@ -98,6 +98,10 @@ class IRSettings(Settings):
                                       "this many positions; 0: no candidates (paper)", low=0, high=10_000_000)
     # tracking (IV-C, IV-D)
     particle_count: int = setting(100, "particles tracked after an initialisation (paper 100)", low=1, high=10_000_000)
+    initial_particles: str = setting("rank", "particles of an initialisation: drawn from the candidates with "
+                                     "probability 1 / rank (ours), or one per candidate, in rank order and again "
+                                     "from the first when there are fewer candidates than particles (paper IV-D)",
+                                     choices=("rank", "one_per_candidate"))
     update_min_d: float = setting(1.0, "translation before a filter update (paper 1 m)", unit="m", low=0.0, high=1e3)
     update_min_a: float = setting(math.radians(20.0), "rotation before a filter update (paper 20 deg)", unit="rad",
                                   low=0.0, high=7.0)

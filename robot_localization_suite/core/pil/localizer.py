@@ -520,7 +520,7 @@ class PilLocalizer:
     def _table(self, profile: LiveProfile) -> NDArray[np.float32]:
         settings = self.settings
         return cost_table(profile, settings.score_truncation, unknown_cost=settings.unknown_cost,
-                          short_cost=settings.short_cost)
+                          short_cost=settings.short_cost, correlation=settings.match_score == "correlation")
 
     def _block_representatives(self, tiles: NDArray[np.int64]) -> NDArray[np.int64]:
         """The first tile of ``tiles`` (ranked, best first) in each block of ``coarse_block`` x ``coarse_block`` tiles."""

@@ -455,7 +455,7 @@ def _visit_kernel(features, order, starts, visit, bound, may_pass, terms, inside
 
 
 def cost_table(
-    live: LiveProfile, truncation: float, *, unknown_cost: float, short_cost: float = 1.0
+    live: LiveProfile, truncation: float, *, unknown_cost: float, short_cost: float = 1.0, correlation: bool = False
 ) -> NDArray[np.float32]:
     """``(N_s, 256)``: the cost of each learned byte (``learning.CODE_LEVELS`` levels, 255 unknown) for each sensor.
 
@@ -465,12 +465,19 @@ def cost_table(
     says little against the place. A learned ray the map cannot predict costs
     ``unknown_cost`` whatever the reading. Invalid sensors cost 0 (they are left out of the
     normalisation by :func:`profile_costs` and :func:`correlate_tiles`).
+
+    ``correlation`` (section 2.5): the cost is ``1 - D_live D_learned / R^2`` instead, with the
+    distances ``D = R (1 - I)``: the lowest summed cost is the highest correlation of the two
+    distance profiles at that shift (``truncation`` and ``short_cost`` are not used).
     """
     learned = 1.0 - np.arange(255, dtype=np.float64) / 254.0
-    d = live.intensities[:, None] - learned[None, :]
-    squared = d * d / (truncation * truncation)
     table = np.empty((live.intensities.size, 256), dtype=np.float32)
-    table[:, :255] = np.minimum(squared, np.where(d > 0.0, short_cost, 1.0))
+    if correlation:
+        table[:, :255] = 1.0 - (1.0 - live.intensities[:, None]) * (1.0 - learned[None, :])
+    else:
+        d = live.intensities[:, None] - learned[None, :]
+        squared = d * d / (truncation * truncation)
+        table[:, :255] = np.minimum(squared, np.where(d > 0.0, short_cost, 1.0))
     table[:, 255] = unknown_cost
     table[~live.valid] = 0.0
     return table

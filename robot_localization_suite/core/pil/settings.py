@@ -12,9 +12,10 @@ from dataclasses import dataclass
 from ..errors import SettingsError
 from ..settings import Settings, setting
 
-__all__ = ["PilSettings", "BEAM_MAPPINGS", "LEVEL_FUNCTION_NAMES"]
+__all__ = ["PilSettings", "BEAM_MAPPINGS", "LEVEL_FUNCTION_NAMES", "MATCH_SCORES"]
 
 BEAM_MAPPINGS = ("nearest", "sector_min")
+MATCH_SCORES = ("truncated_difference", "correlation")
 LEVEL_FUNCTION_NAMES = ("energy", "pq", "harmonic1", "harmonic2", "low_quantile", "high_quantile")
 _BIG = 1e6
 
@@ -81,8 +82,8 @@ class PilSettings(Settings):
     high_quantile_alpha: float = _alpha("high_quantile")
     high_quantile_sigma: float = _sigma("high_quantile", 0.02)
 
-    min_candidates: int = setting(5000, "best-ranked tiles added when fewer pass equation (4); 0: pure filter "
-                                  "(ours)", low=0, high=10_000_000)
+    min_candidates: int = setting(5000, "best-ranked tiles added when fewer pass equation (4); 0: passing tiles "
+                                  "only, still at most max_candidates (ours)", low=0, high=10_000_000)
     max_candidates: int = setting(5000, "most candidate tiles correlated per scan (ours)", low=1, high=10_000_000)
     fine_candidates: int = setting(300, "best (tile, heading) pairs of the coarse correlation taken to the learned "
                                    "angular step (ours)", low=1, high=1_000_000)
@@ -99,6 +100,10 @@ class PilSettings(Settings):
     global_switch_margin: float = setting(0.05, "a tile outside the window wins once its accumulated score "
                                           "advantage exceeds this (ours)", low=0.0, high=1.0)
 
+    match_score: str = setting("truncated_difference", "score that ranks the candidates: the normalised truncated "
+                               "squared difference of the profiles (ours), or the correlation of the distance "
+                               "profiles, highest first (paper 2.5; reported as 1 - sum D_r D_s / (N R^2))",
+                               choices=MATCH_SCORES)
     score_truncation: float = setting(0.1, "tau of the truncated squared profile difference (ours)", unit="intensity",
                                       low=0.0, low_open=True, high=1.0)
     unknown_cost: float = setting(0.5, "cost of a sensor whose learned ray is unknown, between a match (0) and a "

@@ -1,7 +1,8 @@
 """The ``rls_bench`` command line: arguments to specs, bags and runs.
 
     rls_bench BAG... --localizers NAMES --out DIR [--map MAP_YAML] [--mode global|tracking]
-              [--set name.param=value ...] [--max-seconds S] [--no-plots]
+              [--set name.param=value ...] [--params-file NAME=PATH ...] [--profile paper]
+              [--max-seconds S] [--no-plots]
     rls_bench --global-fixes [--every N] BAG... [--localizers NAMES] --out DIR
     rls_bench --all [--with-global-fixes] [--out results]
     rls_bench --cv SPLIT... [--localizers NAMES] [--mode M] [--with-tracking] [--with-global-fixes] --out DIR
@@ -41,6 +42,23 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
             raise ValueError(f"--set expects name.param=value, got {item!r}")
         overrides.setdefault(name, {})[param] = yaml.safe_load(raw)
     return overrides
+
+
+def _parse_params_files(items: Sequence[str]) -> dict[str, Path]:
+    files: dict[str, Path] = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ValueError(f"--params-file expects NAME=PATH, got {item!r}")
+        files[name] = Path(path)
+    return files
+
+
+def _profile_file(name: str, profile: str) -> Path:
+    path = registry.config_dir() / f"{name}_{profile}.yaml"
+    if not path.is_file():
+        raise ValueError(f"--profile {profile}: {name} has no {path.name} in {registry.config_dir()}")
+    return path
 
 
 def _parse_skips(items: Sequence[str]) -> dict[str, dict[str, str]]:
@@ -83,6 +101,12 @@ def _parser() -> argparse.ArgumentParser:
                         help="global (default): no prior; tracking: the first ground-truth pose on initialpose")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME.PARAM=VALUE",
                         help="override a localizer parameter (YAML value)")
+    parser.add_argument("--params-file", dest="params_files", action="append", default=[], metavar="NAME=PATH",
+                        help="read NAME's parameters from PATH for every bag instead of config/NAME.yaml (and of its "
+                        "per-bag files); --set still applies on top")
+    parser.add_argument("--profile", choices=("paper",), default=None,
+                        help="paper: every localizer reads config/<name>_paper.yaml (the method as its paper "
+                        "describes it; docs/<method>.md), unless --params-file names another file")
     parser.add_argument("--all", action="store_true", help="every available localizer over every bag in bags/")
     parser.add_argument("--bags-dir", type=Path, default=None, help="where --all looks for bags (default: bags/)")
     parser.add_argument("--skip", action="append", default=[], metavar="NAME:BAG_GLOB",
@@ -113,6 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(name)s: %(message)s")
     try:
         overrides = _parse_overrides(args.overrides)
+        params_files = _parse_params_files(args.params_files)
         skips = _parse_skips(args.skip)
         bags = list(args.bags)
         if args.all:
@@ -129,9 +154,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError(f"localizer(s) {', '.join(unknown)} not available; available: {', '.join(available) or 'none'}")
         if not names:
             raise ValueError("no localizer is available in this checkout")
+        if set(params_files) - set(names):
+            raise ValueError(f"--params-file names a localizer not run: {', '.join(sorted(set(params_files) - set(names)))}")
         specs = []
         for name in names:
-            spec = registry_spec(name, overrides.get(name))
+            params_file = params_files.get(name)
+            if params_file is None and args.profile:
+                params_file = _profile_file(name, args.profile)
+            spec = registry_spec(name, overrides.get(name), params_file)
             if name in skips:
                 spec = dataclasses.replace(spec, skip={**spec.skip, **skips[name]})
             specs.append(spec)

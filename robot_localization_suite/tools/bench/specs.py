@@ -12,6 +12,7 @@ import fnmatch
 import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ... import registry
@@ -68,11 +69,14 @@ def _plugin_factory(name: str, settings: Any) -> Any:
     return registry.plugin(name).create(settings)
 
 
-def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> LocalizerSpec:
+def registry_spec(
+    name: str, overrides: Mapping[str, Any] | None = None, params_file: Path | None = None
+) -> LocalizerSpec:
     """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``.
 
     Bags matching the plugin's ``bench_params`` globs get a spec whose settings come from that
     params file instead (``overrides`` still on top), reached with :meth:`LocalizerSpec.for_bag`.
+    ``params_file`` (``rls_bench --params-file``, ``--profile``): this file for every bag instead.
 
     Raises:
         SettingsError: an override names no parameter of the localizer (a typo would silently do nothing).
@@ -83,7 +87,7 @@ def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Loca
     if unknown:
         raise SettingsError(f"{name} has no parameter {', '.join(map(repr, unknown))} (see {name} --help)")
 
-    def spec(params_file: str | None) -> LocalizerSpec:
+    def spec(params_file: str | Path | None) -> LocalizerSpec:
         path = registry.config_dir() / params_file if params_file is not None else None
         node_settings, settings = plugin.load_settings(overrides, params_file=path)
         return LocalizerSpec(
@@ -93,8 +97,14 @@ def registry_spec(name: str, overrides: Mapping[str, Any] | None = None) -> Loca
             mount=node_settings.mount,
             skip=dict(plugin.bench_skip),
             skip_global=dict(plugin.bench_skip_global),
-            params=params_file,
+            params=None if params_file is None else str(params_file),
         )
 
-    per_bag = {pattern: spec(params_file) for pattern, params_file in plugin.bench_params.items()}
+    if params_file is not None:
+        if not Path(params_file).is_file():
+            raise SettingsError(f"{name}: params file {str(params_file)!r} not found")
+        path = Path(params_file).resolve()
+        shown = path.name if path.parent == registry.config_dir().resolve() else str(params_file)
+        return dataclasses.replace(spec(path), params=shown)
+    per_bag = {pattern: spec(file) for pattern, file in plugin.bench_params.items()}
     return dataclasses.replace(spec(None), per_bag=per_bag)
