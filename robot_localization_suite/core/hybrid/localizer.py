@@ -9,8 +9,8 @@ counted over the filter's ``effective_beams`` as it weighs its particles; the pr
 
 * to start: at start and on :meth:`reinitialize` the filter is drawn around the best candidates
   instead of uniformly over the map;
-* to recover: a candidate outside the filter's support that explains the scan clearly better
-  than the estimate for ``better_updates`` consecutive updates gets particles injected around it;
+* to recover: a candidate outside the filter's support that has explained the scans clearly
+  better than the estimate (a CUSUM of its log-odds) gets particles injected around it;
 * as the ambiguity signal: a candidate elsewhere that explains the scan as well as the estimate
   makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
 
@@ -71,7 +71,8 @@ class HybridLocalizer:
         self.runner = ProposalRunner(self.sources, log)
         self.grid_map: GridMap | None = None
         self._seed_pending = True
-        self._better_count = 0
+        self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
+        self._evidence = 0.0  # CUSUM of its log-odds (_recover)
         self._updates = 0
         self._waiting: list[Proposal] = []  # background results not used by an update yet
         self.last_estimate: Estimate | None = None
@@ -106,7 +107,7 @@ class HybridLocalizer:
         """Restart the filter around ``pose`` (no seeding from proposals)."""
         self.mcl.set_initial_pose(pose, covariance)
         self._seed_pending = False
-        self._better_count = 0
+        self._better_count, self._evidence = 0, 0.0
 
     def reinitialize(self) -> None:
         """Global localization again: the filter restarts from the next proposals (uniform until there are any)."""
@@ -153,7 +154,7 @@ class HybridLocalizer:
     # -- internals --------------------------------------------------------------------------
     def _restart(self) -> None:
         self._seed_pending = True
-        self._better_count = 0
+        self._better_count, self._evidence = 0, 0.0
 
     def _log_odds(self, fits: NDArray[np.float64]) -> NDArray[np.float64]:
         """Scan fits as the filter weighs particles: ``effective_beams`` times the per-beam log-likelihood."""
@@ -193,12 +194,19 @@ class HybridLocalizer:
         self.mcl.seed_from_poses(pool[order], np.ones(len(order)), min(s.seed_particles, s.mcl.max_particles),
                                  s.proposal_std_xy, s.proposal_std_yaw)
         self._seed_pending = False
-        self._better_count = 0
+        self._better_count, self._evidence = 0, 0.0
 
     def _recover(self, scan: Scan, pool: NDArray[np.float64], fits: NDArray[np.float64],
                  odom: NDArray[np.float64] | None) -> dict[str, Any]:
-        """Inject particles around candidates outside the filter's support that explain the scan clearly better
-        than its estimate (moved to this scan by the odometry) for ``better_updates`` updates in a row."""
+        """Inject particles around candidates outside the filter's support once they have explained the scans
+        clearly better than its estimate (moved to this scan by the odometry).
+
+        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the estimate,
+        ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
+        steady one of a look-alike place once the scans start to differ, and a candidate that does worse than
+        the estimate takes evidence away. While LOCALIZED the advantage must also have held for ``better_updates``
+        updates in a row.
+        """
         s = self.settings
         last = self.mcl.last_estimate
         reference = self.mcl.odometry.reference
@@ -206,29 +214,29 @@ class HybridLocalizer:
             return {}
         delta = relative(reference, odom) if reference is not None and odom is not None else np.zeros(3)
         predicted = compose(last.pose, delta)
-        advantage = self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0]
-        better = np.flatnonzero(np.nan_to_num(advantage, nan=-math.inf) > s.better_log_odds)
+        advantage = np.nan_to_num(
+            self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)
         # in the particles' frame (before this update's motion)
-        back = compose(pool[better], inverse(delta))
+        back = compose(pool, inverse(delta))
         weights = self.mcl.weights
-        outside = [k for k, pose in zip(better, back, strict=True)
-                   if weights[self._near(self.mcl.particles, pose)].sum() < s.support_weight]
-        notes: dict[str, Any] = {"best_candidate_log_odds": round(float(np.nanmax(advantage, initial=-math.inf)), 3)
-                                 if np.isfinite(advantage).any() else None}
-        if not outside:
-            self._better_count = 0
-            return notes
+        outside = np.array([weights[self._near(self.mcl.particles, pose)].sum() < s.support_weight for pose in back],
+                           dtype=bool)
+        if not outside.any() or not np.isfinite(advantage[outside]).any():
+            self._evidence, self._better_count = 0.0, 0
+            return {"switch_evidence": 0.0}
+        step = float(advantage[outside].max())
+        self._evidence = max(0.0, self._evidence + step)
+        self._better_count = self._better_count + 1 if step > 0.0 else 0
+        notes: dict[str, Any] = {"best_outside_log_odds": round(step, 3), "switch_evidence": round(self._evidence, 3)}
         # A filter whose own fit holds (LOCALIZED) is contradicted only by evidence over better_updates updates;
         # one that has lost its fit (or never converged) has nothing to protect.
-        self._better_count += 1
         needed = s.better_updates if last.status is LocalizerStatus.LOCALIZED else 1
-        if self._better_count < needed:
+        if self._evidence < s.better_log_odds or self._better_count < needed:
             return notes
-        self._better_count = 0
-        chosen = np.asarray(outside)
-        centres = compose(pool[chosen], inverse(delta))
-        notes["injected"] = self.mcl.inject_around(centres, np.ones(len(chosen)), s.inject_fraction,
+        chosen = np.flatnonzero(outside & (advantage > 0.0))
+        notes["injected"] = self.mcl.inject_around(back[chosen], np.ones(len(chosen)), s.inject_fraction,
                                                    s.proposal_std_xy, s.proposal_std_yaw)
+        self._evidence, self._better_count = 0.0, 0
         return notes
 
     def _near(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:

@@ -58,12 +58,12 @@ class HybridSettings(Settings):
         0.1, "heading standard deviation of the particles drawn around a candidate (seed and injection)",
         unit="rad", low=0.0, high=math.pi)
     better_log_odds: float = setting(
-        3.0, "a candidate explains the scan clearly better than the filter's estimate when its scan log-likelihood, "
-        "counted over mcl.effective_beams as the filter weighs particles, exceeds the estimate's by this",
-        low=0.0, high=1e6)
+        3.0, "particles are injected around candidates outside the filter's support once the CUSUM of the best "
+        "one's log-odds over the estimate (scan log-likelihoods counted over mcl.effective_beams, as the filter "
+        "weighs particles) reaches this", low=0.0, low_open=True, high=1e6)
     better_updates: int = setting(
-        2, "consecutive updates with a clearly better candidate outside the filter's support before particles are "
-        "injected around it", low=1, high=1000)
+        2, "while LOCALIZED, the candidate must also have been ahead of the estimate at this many consecutive "
+        "updates", low=1, high=1000)
     support_distance: float = setting(
         0.5, "a candidate is inside the filter's support when particles within this distance ...", unit="m",
         low=0.0, low_open=True, high=100.0)
