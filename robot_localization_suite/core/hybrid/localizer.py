@@ -233,8 +233,11 @@ class HybridLocalizer:
         needed = s.better_updates if last.status is LocalizerStatus.LOCALIZED else 1
         if self._evidence < s.better_log_odds or self._better_count < needed:
             return notes
+        # around each candidate ahead of the estimate in proportion to its likelihood for this scan (the share a
+        # Bayes update would give it from a uniform prior): look-alikes of the best get theirs, worse ones little
         chosen = np.flatnonzero(outside & (advantage > 0.0))
-        notes["injected"] = self.mcl.inject_around(back[chosen], np.ones(len(chosen)), s.inject_fraction,
+        share = np.exp(advantage[chosen] - advantage[chosen].max())
+        notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction,
                                                    s.proposal_std_xy, s.proposal_std_yaw)
         self._evidence, self._better_count = 0.0, 0
         return notes
