@@ -20,6 +20,7 @@ from mcl_test_world import Drive, drive, office_map, pose_error
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.hybrid.localizer import HybridLocalizer, ProposalSource
 from robot_localization_suite.core.hybrid.settings import HybridSettings
+from robot_localization_suite.core.ial.settings import IALSettings
 from robot_localization_suite.core.ir.settings import IRSettings
 from robot_localization_suite.core.localizer import Estimate, Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MonteCarloLocalizer
@@ -28,14 +29,17 @@ from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 from robot_localization_suite.core.se2 import compose, relative
 from robot_localization_suite.core.settings import from_params, parameters
+from robot_localization_suite.tools.ial_outlier_case import outlier_case
 
 RESOLUTION = 0.05
 TIGHT = np.diag([0.01, 0.01, 0.003])
 
 
 def _settings(cache: Path, max_range: float = 10.0, **changes: object) -> HybridSettings:
-    """PIL learning into ``cache``; IR on the coarse lattice of the IR tests (a few seconds to index)."""
+    """PIL learning into ``cache``; IR on the coarse lattice of the IR tests (a few seconds to index); the
+    integrity monitor only where a test asks for it (its IAL worker is no part of the others)."""
     base = HybridSettings(
+        integrity_monitor=False,
         pil=PilSettings(max_range=max_range, cache_dir=str(cache), show_progress=False),
         ir=IRSettings(grid_resolution=0.1, angular_resolution=math.radians(2.0), heading_step=math.radians(10.0),
                       step1_positions=150, refine_candidates=100, use_cache=False, progress=False),
@@ -253,3 +257,59 @@ def test_a_proposal_source_that_raises_is_logged_and_skipped_and_the_tracking_go
     assert "RuntimeError: no index" in details["broken_last_error"]
     # throttled: the 1st, 10th, 100th... failure is logged, not each
     assert len(logged) == 1 + int(errors >= 10) + int(errors >= 100) and "no index" in logged[0]
+
+
+# -- the integrity monitor (IAL's boxes) -------------------------------------------------------------
+def test_the_integrity_monitor_refuses_localized_where_outliers_make_a_twin_fit_best(cache: Path) -> None:
+    """Guyonneau et al.'s outlier case (tools/ial_outlier_case.py): 8 of 36 readings read what the half-turn
+    image B of the true pose would see, so the filter settles on B; IAL, told of 8 outliers, keeps boxes at A
+    and at B, and the hybrid is never LOCALIZED (without the monitor it is, at B, 2.4 m off)."""
+    case = outlier_case(40)
+    statuses = {}
+    for monitor in (True, False):
+        settings = _settings(cache, ial=IALSettings(max_outliers=8), integrity_monitor=monitor)
+        hybrid = HybridLocalizer(settings)
+        hybrid.set_map(case.grid_map)
+        found = []
+        for k, scan in enumerate(case.scans):
+            hybrid.on_odometry(case.stamps[k], np.array([0.0, 0.0, case.true_poses[k, 2] - case.true_poses[0, 2]]))
+            if hybrid.monitor is not None:
+                hybrid.monitor.wait()  # the last scan's IAL update has ended: its boxes judge this update
+            estimate = hybrid.on_scan(scan)
+            if estimate is not None:
+                found.append(estimate)
+        hybrid.close()
+        assert len(found) >= 10
+        assert all(pose_error(e.pose, case.twin_poses[0])[0] < 0.3 for e in found[1:])  # at B
+        statuses[monitor] = {e.status for e in found[1:]}
+        if monitor:
+            assert {e.details["integrity"] for e in found[1:]} == {"boxes_at_several_places"}
+    assert statuses[False] == {LocalizerStatus.LOCALIZED}
+    assert LocalizerStatus.LOCALIZED not in statuses[True]
+
+
+def test_the_integrity_monitor_switches_itself_off_where_a_beam_can_end_in_unknown_space(office: GridMap) -> None:
+    data = office.data.copy()
+    data[0:3, 100:140] = -1  # a gap in the south wall: unknown space beyond, a beam can end there
+    opened = GridMap(data, office.resolution, office.origin)
+    run = drive(opened, steps=60, seed=10)
+    hybrid = HybridLocalizer(_settings(Path("unused"), integrity_monitor=True), sources=[])
+    hybrid.set_map(opened)
+    outputs = _replay(hybrid, run)
+    assert outputs and outputs[-1][1].status is LocalizerStatus.LOCALIZED
+    assert all(e.details["integrity"] == "off" and "unknown space" in e.details["integrity_off_reason"]
+               for _, e in outputs)
+    # the same drive on the closed office: the monitor is on and lets the right estimate be LOCALIZED
+    hybrid = HybridLocalizer(_settings(Path("unused"), integrity_monitor=True), sources=[])
+    hybrid.set_map(office)
+    hybrid.set_initial_pose(run.truth[0], TIGHT)
+    closed = drive(office, steps=60, seed=10)
+    last = None
+    for k in range(len(closed.stamps)):
+        hybrid.on_odometry(closed.stamps[k], closed.odometry[k])
+        assert hybrid.monitor is not None
+        hybrid.monitor.wait()
+        estimate = hybrid.on_scan(closed.scans[k])
+        last = estimate or last
+    hybrid.close()
+    assert last is not None and last.details["integrity"] == "on" and last.status is LocalizerStatus.LOCALIZED

@@ -35,6 +35,7 @@ from ..mcl.localizer import MonteCarloLocalizer
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
+from .integrity import IntegrityMonitor
 from .proposals import Proposal, ProposalRunner, ProposalSource
 from .settings import HybridSettings
 
@@ -68,6 +69,8 @@ class HybridLocalizer:
             self._methods.append(ir)
             sources.append(ProposalSource("ir", ir.global_fix, background=True))
         self.sources = list(sources)
+        self.monitor = (IntegrityMonitor(s.ial, s.integrity_margin_xy, s.integrity_margin_yaw, s.ambiguity_distance)
+                        if s.integrity_monitor else None)
         self.runner = ProposalRunner(self.sources, log)
         self.grid_map: GridMap | None = None
         self._seed_pending = True
@@ -84,6 +87,8 @@ class HybridLocalizer:
         self.mcl.set_map(grid_map)
         for method in self._methods:
             method.set_map(grid_map)
+        if self.monitor is not None:
+            self.monitor.set_map(grid_map)
         self.runner.forget()
         self._waiting = []
         self._restart()
@@ -102,10 +107,14 @@ class HybridLocalizer:
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
         """Odometry for the filter (and to move proposals from their scan's stamp to the update's)."""
         self.mcl.on_odometry(stamp, odom_pose)
+        if self.monitor is not None:
+            self.monitor.on_odometry(stamp, odom_pose)
 
     def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Restart the filter around ``pose`` (no seeding from proposals)."""
         self.mcl.set_initial_pose(pose, covariance)
+        if self.monitor is not None:
+            self.monitor.set_initial_pose(pose, covariance)
         self._seed_pending = False
         self._better_count, self._evidence = 0, 0.0
 
@@ -126,6 +135,8 @@ class HybridLocalizer:
         self._waiting.extend(self.runner.collect())
         if self.grid_map is None:
             return self.mcl.on_scan(scan)
+        if self.monitor is not None:
+            self.monitor.submit(scan)
         gate = self.mcl.odometry
         odom = gate.at(scan.stamp)
         due = gate.forced if odom is None else gate.due(odom)
@@ -146,6 +157,7 @@ class HybridLocalizer:
         if estimate is None:
             return None
         estimate = self._verdict(scan, estimate, pool)
+        estimate = self._integrity(scan, estimate)
         estimate = replace(estimate, details={**estimate.details, **notes, **self.runner.details(),
                                               "better_updates": self._better_count})
         self.last_estimate = estimate
@@ -251,6 +263,22 @@ class HybridLocalizer:
         s = self.settings
         far = np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) > s.ambiguity_distance
         return np.asarray(far | (np.abs(angle_difference(poses[:, 2], pose[2])) > s.ambiguity_angle), dtype=bool)
+
+    def _integrity(self, scan: Scan, estimate: Estimate) -> Estimate:
+        """No LOCALIZED against IAL's boxes (the estimate moved back by odometry to their scan), when the monitor
+        is on."""
+        if self.monitor is None:
+            return estimate
+        pose = estimate.pose
+        gate = self.mcl.odometry
+        now, then = gate.at(scan.stamp), gate.at(self.monitor.boxes_stamp)
+        if now is not None and then is not None:
+            pose = compose(pose, relative(now, then))
+        allowed, details = self.monitor.judge(pose)
+        status = estimate.status
+        if not allowed and status is LocalizerStatus.LOCALIZED:
+            status = LocalizerStatus.AMBIGUOUS
+        return replace(estimate, status=status, details={**estimate.details, **details})
 
     def _verdict(self, scan: Scan, estimate: Estimate, pool: NDArray[np.float64]) -> Estimate:
         """AMBIGUOUS when a candidate elsewhere explains the scan as well as the estimate; else the filter's own

@@ -1,7 +1,7 @@
 """Every parameter of ``hybrid_localizer``: its own, and those of the methods it is made of.
 
 The MCL filter, PIL and IR keep their parameters in their own settings classes; here they are
-nested under the prefixes ``mcl.``, ``pil.`` and ``ir.`` (``mcl.max_particles``). The hybrid's own
+nested under the prefixes ``mcl.``, ``pil.``, ``ir.`` and ``ial.`` (``mcl.max_particles``). The hybrid's own
 parameters say when the global proposals are asked for and what they do to the filter. Why each
 mechanism and default: docs/hybrid.md.
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..ial.settings import IALSettings
 from ..ir.settings import IRSettings
 from ..mcl.settings import MclSettings
 from ..pil.settings import PilSettings
@@ -32,6 +33,7 @@ class HybridSettings(Settings):
     mcl: MclSettings = nested(_mcl_settings, prefix="mcl")
     pil: PilSettings = nested(PilSettings, prefix="pil")
     ir: IRSettings = nested(IRSettings, prefix="ir")
+    ial: IALSettings = nested(IALSettings, prefix="ial")
 
     pil_every_updates: int = setting(
         1, "PIL's global fix (cheap) runs at every this many filter updates; 0: never", low=0,
@@ -82,3 +84,12 @@ class HybridSettings(Settings):
         high=1e4)
     ambiguity_angle: float = setting(
         0.5, "... or turned more than this from it", unit="rad", low=0.0, low_open=True, high=math.pi)
+    integrity_monitor: bool = setting(
+        True, "IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
+        "every box, or boxes farther apart than ambiguity_distance, is not LOCALIZED; off by itself on a map with "
+        "unknown space a beam can reach and while IAL has no box")
+    integrity_margin_xy: float = setting(
+        0.25, "an estimate this far outside a box still counts as inside it (its own error)", unit="m", low=0.0,
+        high=100.0)
+    integrity_margin_yaw: float = setting(
+        0.15, "... and this far outside its heading interval", unit="rad", low=0.0, high=math.pi)
