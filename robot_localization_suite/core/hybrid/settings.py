@@ -85,7 +85,8 @@ class HybridSettings(Settings):
     ambiguity_angle: float = setting(
         0.5, "... or turned more than this from it", unit="rad", low=0.0, low_open=True, high=math.pi)
     integrity_monitor: bool = setting(
-        True, "IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
+        False, "(off by default: IAL's kernels hold the Python lock, so a global start blocks updates for seconds; "
+        "docs/hybrid.md) IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
         "every box, or boxes farther apart than ambiguity_distance, is not LOCALIZED; off by itself on a map with "
         "unknown space a beam can reach and while IAL has no box")
     integrity_margin_xy: float = setting(
