@@ -100,6 +100,7 @@ setup(
             "ir_initializer = robot_localization_suite.nodes.ir_initializer:main",
             "ial_localizer = robot_localization_suite.nodes.ial_localizer:main",
             "ima_topo_localizer = robot_localization_suite.nodes.ima_topo_localizer:main",
+            "hybrid_localizer = robot_localization_suite.nodes.hybrid_localizer:main",
             "rls_run = robot_localization_suite.launch.runner:main",
             "rls_demo = robot_localization_suite.launch.demo:main",
             "rls_bench = robot_localization_suite.tools.bench:main",

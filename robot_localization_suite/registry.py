@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from .core.filter.odometry_gate import TIME_JUMP_RESET_S
+from .core.hybrid.settings import HybridSettings
 from .core.ial.settings import IALSettings
 from .core.ima.settings import ImaTrackerSettings
 from .core.ir.settings import IRSettings
@@ -185,6 +186,12 @@ def _create_ial(settings: IALSettings) -> Any:
     return IntervalLocalizer(settings)
 
 
+def _create_hybrid(settings: HybridSettings) -> Any:
+    from .core.hybrid.localizer import HybridLocalizer
+
+    return HybridLocalizer(settings)
+
+
 def _create_ima(settings: ImaTrackerSettings) -> Any:
     from .core.ima.topomap import load_topomap
     from .core.ima.tracking import ImaTopoLocalizer
@@ -236,6 +243,16 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             bench_skip_global={"intel*": _IAL_REAL_LOG, "fr101*": _IAL_REAL_LOG, "orebro*": _IAL_REAL_LOG},
             bench_params={"intel*": _IAL_SLAM_PARAMS, "fr101*": _IAL_SLAM_PARAMS, "orebro*": _IAL_SLAM_PARAMS},
             outputs=("~/boxes (visualization_msgs/MarkerArray: each box, its heading range and the hull)",),
+        ),
+        LocalizerPlugin(
+            "hybrid_localizer",
+            "The MCL filter of mcl_baseline tracks; PIL's global fix (in the update) and IR's (in a worker thread, "
+            "never in the update) propose ranked poses from each scan: the filter starts around the best ones, "
+            "gets particles injected around one that explains the scan clearly better for consecutive updates "
+            "(a kidnapping), and is AMBIGUOUS while a candidate elsewhere explains the scan as well. Parameters "
+            "of the three methods are nested under mcl., pil. and ir.",
+            HybridSettings,
+            _create_hybrid,
         ),
         LocalizerPlugin(
             "ima_topo_localizer",

@@ -34,6 +34,7 @@ from robot_localization_suite.core import metrics
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.raycast import RayCaster
+from robot_localization_suite.core.settings import parameters
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.adapter import AdapterOutput, LocalizerAdapter
 from robot_localization_suite.ros.extras import IAL_BOXES, IMA_PLACE
@@ -128,11 +129,16 @@ OVERRIDES: dict[str, dict[str, Any]] = {
                        "update_min_d": 0.3, "progress": False, "seed": 1},
     "ial_localizer": {},
     "ima_topo_localizer": {},
+    "hybrid_localizer": {"mcl.min_particles": 100, "mcl.max_particles": 500, "mcl.random_seed": 1,
+                         "seed_particles": 500, "pil.show_progress": False, "pil.max_range": RANGE_MAX,
+                         "ir.grid_resolution": 0.1, "ir.angular_resolution": math.radians(2.0),
+                         "ir.heading_step": math.radians(10.0), "ir.step1_positions": 150,
+                         "ir.refine_candidates": 100, "ir.progress": False},
 }
 EXTRAS = {"ial_localizer": IAL_BOXES, "ima_topo_localizer": IMA_PLACE}
 # How many generated cases each localizer runs (a case: a fresh localizer, normal steps, the fuzz, normal steps).
 EXAMPLES = {"mcl_baseline": 60, "pil_localizer": 40, "ir_initializer": 40, "ial_localizer": 40,
-            "ima_topo_localizer": 30}
+            "ima_topo_localizer": 30, "hybrid_localizer": 30}
 CASES_RUN: Counter[str] = Counter()
 
 
@@ -145,8 +151,9 @@ def make_localizer(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], 
         if name not in made:
             plugin = registry.plugin(name)
             overrides = dict(OVERRIDES[name])
-            if "cache_dir" in {field.name for field in plugin.settings.__dataclass_fields__.values()}:
-                overrides["cache_dir"] = cache
+            for param in parameters(plugin.settings):  # the hybrid's are pil.cache_dir and ir.cache_dir
+                if param.path[-1] == "cache_dir":
+                    overrides[param.name] = cache
             method_settings = plugin.load_settings(overrides)[1]
             if plugin.uses_camera:
                 from robot_localization_suite.core.ima.topomap import load_topomap

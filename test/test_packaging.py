@@ -211,5 +211,5 @@ def test_config_files_set_declared_parameters_with_their_types() -> None:
                     f"the node declares {type(declared[key]).__name__} (default {declared[key]!r})"
                 )
         checked += 1
-    assert checked == 6  # scan_sim and the five localizers
+    assert checked == 7  # scan_sim and the six localizers
     assert not problems, "\n".join(problems)

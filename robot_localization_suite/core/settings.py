@@ -101,9 +101,14 @@ def setting(
     return dataclasses.field(default=default, metadata={_KEY: meta})
 
 
-def nested(factory: Callable[[], Settings]) -> Any:
-    """A field holding another settings object whose parameters join the parent's."""
-    return dataclasses.field(default_factory=factory, metadata={_NESTED: True})
+def nested(factory: Callable[[], Settings], prefix: str = "") -> Any:
+    """A field holding another settings object whose parameters join the parent's.
+
+    With ``prefix`` its parameters are named ``<prefix>.<name>`` (a composite method holding other
+    methods' settings whose names would clash: ``mcl.max_particles``, ``pil.max_range``). The
+    defaults are those of the object ``factory`` returns (a composite may start from other values).
+    """
+    return dataclasses.field(default_factory=factory, metadata={_NESTED: prefix or True})
 
 
 @dataclass(frozen=True)
@@ -240,11 +245,11 @@ def _fields(cls: type) -> Iterator[tuple[dataclasses.Field[Any], Any]]:
         yield field, field.metadata
 
 
-def _nested_class(field: dataclasses.Field[Any]) -> type:
-    """The settings class a :func:`nested` field holds."""
+def _nested_default(field: dataclasses.Field[Any]) -> Any:
+    """The default settings object a :func:`nested` field holds (its factory's: defaults of its own)."""
     factory = field.default_factory
     assert callable(factory), field.name
-    return type(factory())
+    return factory()
 
 
 _TABLES: dict[type, tuple[Parameter, ...]] = {}
@@ -260,24 +265,28 @@ def parameters(cls: type[Settings]) -> tuple[Parameter, ...]:
         return _TABLES[cls]
     found: list[Parameter] = []
 
-    def visit(klass: type, prefix: tuple[str, ...]) -> None:
+    def visit(klass: type, defaults: Any, prefix: tuple[str, ...], name_prefix: str) -> None:
         for field, meta in _fields(klass):
             if meta.get(_NESTED):
-                visit(_nested_class(field), (*prefix, field.name))
+                label = meta[_NESTED]
+                inner = _nested_default(field) if defaults is None else getattr(defaults, field.name)
+                visit(type(inner), inner, (*prefix, field.name),
+                      f"{name_prefix}{label}." if isinstance(label, str) else name_prefix)
                 continue
             info: Setting | None = meta.get(_KEY)
             if info is None:
                 raise SettingsError(f"{klass.__name__}.{field.name} has no setting() metadata")
-            default = field.default
+            default = field.default if defaults is None else getattr(defaults, field.name)
             if not isinstance(default, (bool, int, float, str)):
                 raise SettingsError(f"{klass.__name__}.{field.name}: default {default!r} is no ROS parameter type")
-            probe = Parameter(info.ros_name or field.name, (*prefix, field.name), default, info.unit, None, None, info)
+            probe = Parameter(name_prefix + (info.ros_name or field.name), (*prefix, field.name), default, info.unit,
+                              None, None, info)
             low = None if info.low is None else float(probe.to_ros(info.low))
             high = None if info.high is None else float(probe.to_ros(info.high))
             found.append(dataclasses.replace(probe, default=probe.to_ros(default), unit=info.ros_unit or info.unit,
                                              low=low, high=high))
 
-    visit(cls, ())
+    visit(cls, None, (), "")
     names = [p.name for p in found]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -314,12 +323,15 @@ def from_params(cls: type[S], values: Mapping[str, Any]) -> S:
     return _build(cls, (), tree)
 
 
-def _build(cls: type[S], prefix: tuple[str, ...], tree: dict[tuple[str, ...], dict[str, Any]]) -> S:
+def _build(cls: type[S], prefix: tuple[str, ...], tree: dict[tuple[str, ...], dict[str, Any]],
+           base: S | None = None) -> S:
+    """``cls`` (or ``base``, a nested field's default) with the values of ``tree`` under ``prefix``."""
     kwargs = dict(tree.get(prefix, {}))
     for field, meta in _fields(cls):
         if meta.get(_NESTED):
-            kwargs[field.name] = _build(_nested_class(field), (*prefix, field.name), tree)
-    return cls(**kwargs)
+            inner = _nested_default(field)
+            kwargs[field.name] = _build(type(inner), (*prefix, field.name), tree, inner)
+    return cls(**kwargs) if base is None else cast(S, dataclasses.replace(cast(Any, base), **kwargs))
 
 
 def to_params(settings: Settings) -> dict[str, ParamValue]:

@@ -228,6 +228,62 @@ class MonteCarloLocalizer:
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 
+    # -- hooks for a composite localizer (core/hybrid) -------------------------------------
+    def scan_fit(self, poses: NDArray[np.float64], scan: Scan) -> NDArray[np.float64]:
+        """Per laser pose ``(P, 3)``, how well ``scan`` fits there: the geometric-mean per-beam likelihood the
+        status judges (``fit`` in the details; docs/mcl.md), the floor's for a pose off the map or in an obstacle.
+
+        NaN for every pose before a map or for a scan without a usable beam.
+        """
+        pose_arr = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        beams = self._select_beams(scan) if self._sensor is not None else None
+        if beams is None or len(pose_arr) == 0:
+            return np.full(len(pose_arr), np.nan)
+        assert self._sensor is not None
+        log_likelihood = self._scan_log_likelihood(pose_arr, beams)
+        log_likelihood[~self._pose_is_possible(pose_arr)] = len(beams.angles) * self._sensor.floor_log_likelihood(
+            beams.max_range)
+        return np.asarray(np.exp(log_likelihood / len(beams.angles)), dtype=np.float64)
+
+    def seed_from_poses(self, poses: NDArray[np.float64], weights: NDArray[np.float64], count: int,
+                        std_xy: float, std_yaw: float) -> None:
+        """Restart with ``count`` particles drawn around weighted poses (ranked global-fix candidates)
+        with Gaussian spread, as :meth:`set_initial_pose` does around one pose. Ignored before a map."""
+        if self.grid_map is None:
+            return
+        self._pending = None
+        self.particles = self._draw_around(poses, weights, max(int(count), 1), std_xy, std_yaw)
+        self.log_weights = np.zeros(len(self.particles))
+        self._reset_filter_state()
+
+    def inject_around(self, poses: NDArray[np.float64], weights: NDArray[np.float64], fraction: float,
+                      std_xy: float, std_yaw: float) -> int:
+        """Replace ``fraction`` of the particles by draws around weighted poses; returns how many.
+
+        A resampling, as Augmented MCL's injection (the rest is drawn from the current weights,
+        then every weight is equal), but around given poses instead of uniform ones.
+        """
+        count = len(self.particles)
+        injected = min(count, int(round(fraction * count)))
+        if injected == 0 or self.grid_map is None:
+            return 0
+        kept = self.particles[low_variance_resample(self.weights, count - injected, self.rng)]
+        self.particles = np.vstack([kept, self._draw_around(poses, weights, injected, std_xy, std_yaw)])
+        self.log_weights = np.zeros(count)
+        self.counters.injected_particles += injected
+        return injected
+
+    def _draw_around(self, poses: NDArray[np.float64], weights: NDArray[np.float64], count: int,
+                     std_xy: float, std_yaw: float) -> NDArray[np.float64]:
+        centres = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        share = np.maximum(np.asarray(weights, dtype=np.float64).reshape(-1), 0.0)
+        share = share / share.sum() if share.sum() > 0.0 else np.full(len(centres), 1.0 / len(centres))
+        chosen = centres[low_variance_resample(share, count, self.rng)]
+        spread = np.array([max(std_xy, _MIN_INITIAL_STD_XY)] * 2 + [max(std_yaw, _MIN_INITIAL_STD_YAW)])
+        drawn = chosen + self.rng.standard_normal((count, 3)) * spread
+        drawn[:, 2] = wrap_angle(drawn[:, 2])
+        return drawn
+
     # -- internals --------------------------------------------------------------------
     @property
     def particle_count(self) -> int:

@@ -1,0 +1,308 @@
+"""The hybrid localizer: the MCL filter tracks, single-scan global fixes propose (``hybrid_localizer``).
+
+Made of the existing methods, not copies of them: :class:`~..mcl.localizer.MonteCarloLocalizer`
+tracks; PIL's global fix (Lambert et al. 2020, in the update: milliseconds) and IR's (Aycard &
+Brouard, seed 001 IV-B, in a worker thread: never in the update) propose ranked poses
+(:mod:`.proposals`). Every candidate and the filter's estimate are scored against the scan by
+one measure, the filter's own scan fit (:meth:`~..mcl.localizer.MonteCarloLocalizer.scan_fit`),
+counted over the filter's ``effective_beams`` as it weighs its particles; the proposals are used
+
+* to start: at start and on :meth:`reinitialize` the filter is drawn around the best candidates
+  instead of uniformly over the map;
+* to recover: a candidate outside the filter's support that has explained the scans clearly
+  better than the estimate (a CUSUM of its log-odds) gets particles injected around it;
+* as the ambiguity signal: a candidate elsewhere that explains the scan as well as the estimate
+  makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
+
+Notes (why each mechanism, measured figures): docs/hybrid.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..grid_map import GridMap
+from ..ir.global_fix import IRGlobalFixer
+from ..localizer import Estimate, LocalizerStatus
+from ..mcl.localizer import MonteCarloLocalizer
+from ..pil.localizer import PilLocalizer
+from ..scan import Scan
+from ..se2 import angle_difference, compose, inverse, relative
+from .integrity import IntegrityMonitor
+from .proposals import Proposal, ProposalRunner, ProposalSource
+from .settings import HybridSettings
+
+__all__ = ["HybridSettings", "HybridLocalizer", "ProposalSource"]
+
+_LOG = logging.getLogger(__name__)
+
+
+class HybridLocalizer:
+    """MCL tracking with PIL and IR proposals; implements :class:`~..localizer.Localizer`.
+
+    Args:
+        settings: the hybrid's settings (the filter's, PIL's and IR's nested in them).
+        sources: proposal sources instead of PIL (in the update) and IR (in a worker), e.g. a test's.
+        log: ``log(level, text)`` for failing sources; default: the module's logger.
+    """
+
+    def __init__(self, settings: HybridSettings | None = None, *, sources: Sequence[ProposalSource] | None = None,
+                 log: Callable[[str, str], None] | None = None) -> None:
+        self.settings = settings or HybridSettings()
+        s = self.settings
+        self.mcl = MonteCarloLocalizer(s.mcl)
+        self._methods: list[Any] = []  # the global fixers that need the map (and prepare)
+        if sources is None:
+            sources = []
+            if s.pil_every_updates > 0:
+                pil = PilLocalizer(s.pil)
+                self._methods.append(pil)
+                sources.append(ProposalSource("pil", pil.global_fix))
+            ir = IRGlobalFixer(s.ir)
+            self._methods.append(ir)
+            sources.append(ProposalSource("ir", ir.global_fix, background=True))
+        self.sources = list(sources)
+        self.monitor = (IntegrityMonitor(s.ial, s.integrity_margin_xy, s.integrity_margin_yaw, s.ambiguity_distance)
+                        if s.integrity_monitor else None)
+        self.runner = ProposalRunner(self.sources, log)
+        self.grid_map: GridMap | None = None
+        self._seed_pending = True
+        self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
+        self._evidence = 0.0  # CUSUM of its log-odds (_recover)
+        self._updates = 0
+        self._waiting: list[Proposal] = []  # background results not used by an update yet
+        self.last_estimate: Estimate | None = None
+
+    # -- Localizer protocol ---------------------------------------------------------------
+    def set_map(self, grid_map: GridMap) -> None:
+        """Use ``grid_map`` in the filter and every global fixer (PIL learns, IR indexes); start from proposals."""
+        self.grid_map = grid_map
+        self.mcl.set_map(grid_map)
+        for method in self._methods:
+            method.set_map(grid_map)
+        if self.monitor is not None:
+            self.monitor.set_map(grid_map)
+        self.runner.forget()
+        self._waiting = []
+        self._restart()
+
+    def prepare(self, scan: Scan) -> None:
+        """Precompute PIL's learning and IR's index for this scanner now (a failure is logged: that source is
+        then skipped at its queries)."""
+        for method in self._methods:
+            try:
+                method.prepare(scan)
+                if isinstance(method, PilLocalizer):
+                    method.global_fix(scan)  # its compiled kernels load now, not in the first update
+            except Exception as exc:  # noqa: BLE001 - the tracking must not depend on a proposal source
+                _LOG.warning("hybrid: preparing %s failed: %s: %s", type(method).__name__, type(exc).__name__, exc)
+
+    def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
+        """Odometry for the filter (and to move proposals from their scan's stamp to the update's)."""
+        self.mcl.on_odometry(stamp, odom_pose)
+        if self.monitor is not None:
+            self.monitor.on_odometry(stamp, odom_pose)
+
+    def set_initial_pose(self, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
+        """Restart the filter around ``pose`` (no seeding from proposals)."""
+        self.mcl.set_initial_pose(pose, covariance)
+        if self.monitor is not None:
+            self.monitor.set_initial_pose(pose, covariance)
+        self._seed_pending = False
+        self._better_count, self._evidence = 0, 0.0
+
+    def reinitialize(self) -> None:
+        """Global localization again: the filter restarts from the next proposals (uniform until there are any)."""
+        self.mcl.reinitialize()
+        self._restart()
+
+    def request_nomotion_update(self) -> None:
+        self.mcl.request_nomotion_update()
+
+    def close(self) -> None:
+        """Stop the proposal workers."""
+        self.runner.close()
+
+    def on_scan(self, scan: Scan) -> Estimate | None:
+        """Proposals, then the filter update, then the verdict; None when the filter has no update due."""
+        self._waiting.extend(self.runner.collect())
+        if self.grid_map is None:
+            return self.mcl.on_scan(scan)
+        if self.monitor is not None:
+            self.monitor.submit(scan)
+        gate = self.mcl.odometry
+        odom = gate.at(scan.stamp)
+        due = gate.forced if odom is None else gate.due(odom)
+        notes: dict[str, Any] = {}
+        pool: NDArray[np.float64] = np.zeros((0, 3))
+        if due:
+            self._updates += 1
+            pool = self._proposals(scan, odom)
+            notes["proposals"] = len(pool)
+            if len(pool):
+                fits = self.mcl.scan_fit(pool, scan)
+                if self._seed_pending:
+                    self._seed(pool, fits)
+                    notes["seeded"] = True
+                else:
+                    notes.update(self._recover(scan, pool, fits, odom))
+        estimate = self.mcl.on_scan(scan)
+        if estimate is None:
+            return None
+        estimate = self._verdict(scan, estimate, pool)
+        estimate = self._integrity(scan, estimate)
+        estimate = replace(estimate, details={**estimate.details, **notes, **self.runner.details(),
+                                              "better_updates": self._better_count})
+        self.last_estimate = estimate
+        return estimate
+
+    # -- internals --------------------------------------------------------------------------
+    def _restart(self) -> None:
+        self._seed_pending = True
+        self._better_count, self._evidence = 0, 0.0
+
+    def _log_odds(self, fits: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Scan fits as the filter weighs particles: ``effective_beams`` times the per-beam log-likelihood."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.asarray(self.settings.mcl.effective_beams * np.log(fits), dtype=np.float64)
+
+    def _proposals(self, scan: Scan, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """The candidates of this update ``(C, 3)``: in-update sources now, background results that have come
+        in (moved by the odometry since their scan); background sources asked again when due."""
+        s = self.settings
+        localized = self.last_estimate is not None and self.last_estimate.status is LocalizerStatus.LOCALIZED
+        found: list[Proposal] = []
+        for source in self.sources:
+            if not source.background:
+                # in the update when its answer is wanted at once; while LOCALIZED off the tracking path
+                if s.pil_every_updates > 0 and self._updates % s.pil_every_updates == 0:
+                    found.extend(self.runner.ask(source.name, scan,
+                                                 background=localized and not s.pil_in_update_while_localized))
+            elif not self.runner.in_flight(source.name) and (
+                    not localized or (s.ir_every_updates > 0 and self._updates % s.ir_every_updates == 0)):
+                self.runner.ask(source.name, scan)
+        found.extend(self._waiting)
+        self._waiting = []
+        poses = []
+        for proposal in found:
+            candidates = proposal.candidates[: s.proposals_scored]
+            then = self.mcl.odometry.at(proposal.stamp)
+            if proposal.stamp != scan.stamp and then is not None and odom is not None:
+                candidates = compose(candidates, relative(then, odom))
+            poses.append(candidates)
+        return np.vstack(poses) if poses else np.zeros((0, 3))
+
+    def _seed(self, pool: NDArray[np.float64], fits: NDArray[np.float64]) -> None:
+        """Start the filter around the ``seed_candidates`` best-fitting candidates, as many particles each."""
+        s = self.settings
+        order = np.argsort(-np.nan_to_num(fits, nan=-1.0), kind="stable")[: s.seed_candidates]
+        self.mcl.seed_from_poses(pool[order], np.ones(len(order)), min(s.seed_particles, s.mcl.max_particles),
+                                 s.proposal_std_xy, s.proposal_std_yaw)
+        self._seed_pending = False
+        self._better_count, self._evidence = 0, 0.0
+
+    def _recover(self, scan: Scan, pool: NDArray[np.float64], fits: NDArray[np.float64],
+                 odom: NDArray[np.float64] | None) -> dict[str, Any]:
+        """Inject particles around candidates outside the filter's support once they have explained the scans
+        clearly better than its estimate (moved to this scan by the odometry).
+
+        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the estimate,
+        ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
+        steady one of a look-alike place once the scans start to differ, and a candidate that does worse than
+        the estimate takes evidence away. While LOCALIZED the advantage must also have held for ``better_updates``
+        updates in a row.
+        """
+        s = self.settings
+        last = self.mcl.last_estimate
+        reference = self.mcl.odometry.reference
+        if last is None or len(self.mcl.particles) == 0:
+            return {}
+        delta = relative(reference, odom) if reference is not None and odom is not None else np.zeros(3)
+        predicted = compose(last.pose, delta)
+        advantage = np.nan_to_num(
+            self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)
+        # in the particles' frame (before this update's motion)
+        back = compose(pool, inverse(delta))
+        weights = self.mcl.weights
+        outside = np.array([weights[self._near(self.mcl.particles, pose)].sum() < s.support_weight for pose in back],
+                           dtype=bool)
+        if not outside.any() or not np.isfinite(advantage[outside]).any():
+            self._evidence, self._better_count = 0.0, 0
+            return {"switch_evidence": 0.0}
+        step = float(advantage[outside].max())
+        self._evidence = max(0.0, self._evidence + step)
+        self._better_count = self._better_count + 1 if step > 0.0 else 0
+        notes: dict[str, Any] = {"best_outside_log_odds": round(step, 3), "switch_evidence": round(self._evidence, 3)}
+        # A filter whose own fit holds (LOCALIZED) is contradicted only by evidence over better_updates updates;
+        # one that has lost its fit (or never converged) has nothing to protect.
+        needed = s.better_updates if last.status is LocalizerStatus.LOCALIZED else 1
+        if self._evidence < s.better_log_odds or self._better_count < needed:
+            return notes
+        # around each candidate ahead of the estimate in proportion to its likelihood for this scan (the share a
+        # Bayes update would give it from a uniform prior): look-alikes of the best get theirs, worse ones little
+        chosen = np.flatnonzero(outside & (advantage > 0.0))
+        share = np.exp(advantage[chosen] - advantage[chosen].max())
+        notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction,
+                                                   s.proposal_std_xy, s.proposal_std_yaw)
+        self._evidence, self._better_count = 0.0, 0
+        return notes
+
+    def _near(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
+        s = self.settings
+        close = np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) <= s.support_distance
+        return np.asarray(close & (np.abs(angle_difference(poses[:, 2], pose[2])) <= s.support_angle), dtype=bool)
+
+    def _elsewhere(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
+        s = self.settings
+        far = np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) > s.ambiguity_distance
+        return np.asarray(far | (np.abs(angle_difference(poses[:, 2], pose[2])) > s.ambiguity_angle), dtype=bool)
+
+    def _integrity(self, scan: Scan, estimate: Estimate) -> Estimate:
+        """No LOCALIZED against IAL's boxes (the estimate moved back by odometry to their scan), when the monitor
+        is on."""
+        if self.monitor is None:
+            return estimate
+        pose = estimate.pose
+        gate = self.mcl.odometry
+        now, then = gate.at(scan.stamp), gate.at(self.monitor.boxes_stamp)
+        if now is not None and then is not None:
+            pose = compose(pose, relative(now, then))
+        allowed, details = self.monitor.judge(pose)
+        status = estimate.status
+        if not allowed and status is LocalizerStatus.LOCALIZED:
+            status = LocalizerStatus.AMBIGUOUS
+        return replace(estimate, status=status, details={**estimate.details, **details})
+
+    def _verdict(self, scan: Scan, estimate: Estimate, pool: NDArray[np.float64]) -> Estimate:
+        """AMBIGUOUS when a candidate elsewhere explains the scan as well as the estimate; else the filter's own
+        status (LOCALIZED only when converged)."""
+        s = self.settings
+        if len(pool) == 0:
+            return estimate
+        scores = self._log_odds(self.mcl.scan_fit(np.vstack([estimate.pose[None, :], pool]), scan))
+        own, others = scores[0], scores[1:]
+        if not np.isfinite(own):
+            return estimate
+        rivals = np.flatnonzero(self._elsewhere(pool, estimate.pose)
+                                & (np.nan_to_num(others, nan=-math.inf) >= own - s.ambiguity_log_odds))
+        details = {**estimate.details, "estimate_log_fit": round(float(own), 3), "rivals": 0}
+        if rivals.size == 0:
+            return replace(estimate, details=details)
+        # one rival a place: the best-scoring candidate of each, best first
+        places: list[int] = []
+        for k in rivals[np.argsort(-others[rivals], kind="stable")]:
+            if all(self._elsewhere(pool[[k]], pool[j])[0] for j in places):
+                places.append(int(k))
+        poses = np.vstack([estimate.pose[None, :], pool[places]])
+        log_weights = np.concatenate([[own], others[places]])
+        weights = np.exp(log_weights - log_weights.max())
+        details["rivals"] = len(places)
+        return replace(estimate, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
+                       candidate_weights=weights / weights.sum(), details=details)

@@ -1,0 +1,96 @@
+"""Every parameter of ``hybrid_localizer``: its own, and those of the methods it is made of.
+
+The MCL filter, PIL and IR keep their parameters in their own settings classes; here they are
+nested under the prefixes ``mcl.``, ``pil.``, ``ir.`` and ``ial.`` (``mcl.max_particles``). The hybrid's own
+parameters say when the global proposals are asked for and what they do to the filter. Why each
+mechanism and default: docs/hybrid.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..ial.settings import IALSettings
+from ..ir.settings import IRSettings
+from ..mcl.settings import MclSettings
+from ..pil.settings import PilSettings
+from ..settings import Settings, nested, setting
+
+__all__ = ["HybridSettings"]
+
+
+def _mcl_settings() -> MclSettings:
+    """The filter as the hybrid runs it: the proposals, not Augmented MCL's random particles, recover it
+    (an injected fraction must reach 1, which it never does: the fit averages still judge the status)."""
+    return MclSettings(recovery_min_injection=1.0)
+
+
+@dataclass(frozen=True)
+class HybridSettings(Settings):
+    """Settings of :class:`~.localizer.HybridLocalizer` (docs/hybrid.md)."""
+
+    mcl: MclSettings = nested(_mcl_settings, prefix="mcl")
+    pil: PilSettings = nested(PilSettings, prefix="pil")
+    ir: IRSettings = nested(IRSettings, prefix="ir")
+    ial: IALSettings = nested(IALSettings, prefix="ial")
+
+    pil_every_updates: int = setting(
+        1, "PIL's global fix (cheap) runs at every this many filter updates; 0: never", low=0,
+        high=1_000_000)
+    pil_in_update_while_localized: bool = setting(
+        False, "PIL's global fix runs inside the update while LOCALIZED too; false: then in a worker thread, off "
+        "the tracking path (always inside the update while not LOCALIZED: at start and after a kidnapping its "
+        "answer is wanted at once)")
+    ir_every_updates: int = setting(
+        10, "while LOCALIZED, IR's global fix (precise, slow, in a worker thread) is asked for at every this many "
+        "filter updates; otherwise whenever the worker is free; 0: only while not LOCALIZED", low=0, high=1_000_000)
+    proposals_scored: int = setting(
+        10, "best candidates of each source scored against the scan at an update", low=1, high=10_000)
+    seed_candidates: int = setting(
+        10, "at start and on reinitialize the filter is drawn around this many best candidates (K)", low=1,
+        high=10_000)
+    seed_particles: int = setting(
+        5000, "particles of a filter drawn around the candidates (at most mcl.max_particles)", low=1,
+        high=10_000_000)
+    proposal_std_xy: float = setting(
+        0.25, "position standard deviation of the particles drawn around a candidate (seed and injection)",
+        unit="m", low=0.0, high=100.0)
+    proposal_std_yaw: float = setting(
+        0.1, "heading standard deviation of the particles drawn around a candidate (seed and injection)",
+        unit="rad", low=0.0, high=math.pi)
+    better_log_odds: float = setting(
+        3.0, "particles are injected around candidates outside the filter's support once the CUSUM of the best "
+        "one's log-odds over the estimate (scan log-likelihoods counted over mcl.effective_beams, as the filter "
+        "weighs particles) reaches this", low=0.0, low_open=True, high=1e6)
+    better_updates: int = setting(
+        2, "while LOCALIZED, the candidate must also have been ahead of the estimate at this many consecutive "
+        "updates", low=1, high=1000)
+    support_distance: float = setting(
+        0.5, "a candidate is inside the filter's support when particles within this distance ...", unit="m",
+        low=0.0, low_open=True, high=100.0)
+    support_angle: float = setting(
+        0.35, "... and this heading difference ...", unit="rad", low=0.0, low_open=True, high=math.pi)
+    support_weight: float = setting(
+        0.01, "... hold at least this share of the weight", low=0.0, high=1.0)
+    inject_fraction: float = setting(
+        0.5, "share of the particles replaced by draws around a clearly better candidate", low=0.0, low_open=True,
+        high=1.0)
+    ambiguity_log_odds: float = setting(
+        1.0, "a candidate elsewhere explains the scan as well as the estimate when its log-likelihood (counted as in "
+        "better_log_odds) is at least the estimate's minus this: AMBIGUOUS, never LOCALIZED", low=0.0, high=1e6)
+    ambiguity_distance: float = setting(
+        1.0, "candidates farther than this from the estimate are elsewhere", unit="m", low=0.0, low_open=True,
+        high=1e4)
+    ambiguity_angle: float = setting(
+        0.5, "... or turned more than this from it", unit="rad", low=0.0, low_open=True, high=math.pi)
+    integrity_monitor: bool = setting(
+        False, "(off by default: IAL's kernels hold the Python lock, so a global start blocks updates for seconds; "
+        "docs/hybrid.md) IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
+        "every box, or boxes farther apart than ambiguity_distance, is not LOCALIZED; off by itself on a map with "
+        "unknown space a beam can reach and while IAL has no box")
+    integrity_margin_xy: float = setting(
+        0.25, "an estimate this far outside a box still counts as inside it (its own error)", unit="m", low=0.0,
+        high=100.0)
+    integrity_margin_yaw: float = setting(
+        0.15, "... and this far outside its heading interval", unit="rad", low=0.0, high=math.pi)
