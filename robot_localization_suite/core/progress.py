@@ -23,7 +23,9 @@ from tqdm.auto import tqdm
 
 __all__ = ["PROGRESS_DISABLE_ENV", "ReportingBar", "current_progress", "progress_disabled"]
 
-_LOCK = threading.Lock()
+# Re-entrant: a bar's __del__ (tqdm closes on garbage collection) can run inside the locked region of
+# another bar's close in the same thread; with a plain Lock that thread waited on itself (test_hybrid hung).
+_LOCK = threading.RLock()
 _OPEN_BARS: list[ReportingBar] = []
 
 #: tqdm's own switch, honoured here too (any value but "", "0", "false", "no", "off").
@@ -57,9 +59,8 @@ class ReportingBar(tqdm):
         return super().update(n)
 
     def close(self) -> None:
-        with _LOCK:
-            if self in _OPEN_BARS:
-                _OPEN_BARS.remove(self)
+        with _LOCK:  # by identity: tqdm compares bars by their screen position
+            _OPEN_BARS[:] = [bar for bar in _OPEN_BARS if bar is not self]
         super().close()
 
 
