@@ -40,13 +40,13 @@ def summed_area_table(obstacle: NDArray[np.bool_]) -> NDArray[np.int32]:
     return sat
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _count(sat, r0, r1, c0, c1):
     """Obstacle cells in rows r0..r1, columns c0..c1 (inclusive, inside the map)."""
     return sat[r1 + 1, c1 + 1] - sat[r0, c1 + 1] - sat[r1 + 1, c0] + sat[r0, c0]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def obstacle_count(sat, c0, c1, r0, r1):
     """Obstacle cells in a cell rectangle (inclusive); off-map cells count, so the result is >= 1 then."""
     height = sat.shape[0] - 1
@@ -63,7 +63,7 @@ def obstacle_count(sat, c0, c1, r0, r1):
     return inside + off_map
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _all_marked(sat, c0, c1, r0, r1):
     """Whether every cell of the rectangle is on the map and marked."""
     height = sat.shape[0] - 1
@@ -73,7 +73,7 @@ def _all_marked(sat, c0, c1, r0, r1):
     return _count(sat, r0, r1, c0, c1) == (c1 - c0 + 1) * (r1 - r0 + 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def inmap_hull(sat, c0, c1, r0, r1):
     """Cell hull ``(found, c_min, c_max, r_min, r_max)`` of the marked cells of the map inside a rectangle.
 
@@ -122,7 +122,7 @@ def inmap_hull(sat, c0, c1, r0, r1):
     return True, c_min, c_max, r_min, r_max
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def obstacle_hull(sat, c0, c1, r0, r1):
     """Cell hull ``(found, c_min, c_max, r_min, r_max)`` of the obstacles (off-map cells included) in a rectangle."""
     height = sat.shape[0] - 1
@@ -150,7 +150,7 @@ def obstacle_hull(sat, c0, c1, r0, r1):
     return c_min <= c_max, c_min, c_max, r_min, r_max
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _cell_range(lo, hi, origin, resolution):
     """Inclusive cell indices of every cell touching the closed world interval [lo, hi]."""
     return (
@@ -159,7 +159,7 @@ def _cell_range(lo, hi, origin, resolution):
     )
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _insert_largest(buffer, count, capacity, value):
     """Keep ``buffer[:count]`` the largest values seen, in descending order; returns the new count."""
     if count < capacity:
@@ -176,7 +176,7 @@ def _insert_largest(buffer, count, capacity, value):
     return count
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _arc_of_box(d1lo, d1hi, d2lo, d2hi):
     """Directions ``[a_lo, a_hi]`` of every vector in a box that excludes the origin (span < pi)."""
     centre = math.atan2(0.5 * (d2lo + d2hi), 0.5 * (d1lo + d1hi))
@@ -195,7 +195,7 @@ def _arc_of_box(d1lo, d1hi, d2lo, d2hi):
     return centre + rel_lo - OUTWARD, centre + rel_hi + OUTWARD
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _intersect_arc(tlo, thi, alo, ahi):
     """Hull of ``[tlo, thi]`` intersected with the arc ``[alo, ahi] + 2 pi k`` over all k; (ok, lo, hi)."""
     k_first = math.floor((tlo - ahi) / TWO_PI)
@@ -211,7 +211,7 @@ def _intersect_arc(tlo, thi, alo, ahi):
     return out_lo <= out_hi, out_lo, out_hi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def contract_box(
     box,
     beam_angles,
@@ -381,7 +381,7 @@ def contract_box(
     return consistent_beams
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _contract_to_fixpoint(box, beam_angles, range_lo, range_hi, max_outliers, sat, free_sat, certain_sat,
                           free_samples, origin_x, origin_y, resolution, margin, scratch, beam_ok, top, passes,
                           min_gain):
@@ -407,7 +407,7 @@ def _contract_to_fixpoint(box, beam_angles, range_lo, range_hi, max_outliers, sa
     return consistent
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def pave(
     boxes_in,
     beam_angles,
@@ -488,7 +488,7 @@ def pave(
     return out[:count].copy(), out_consistent[:count].copy(), contractions, limited
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def merge_boxes(boxes, max_width):
     """Greedy grouping of boxes into hulls no wider than ``max_width`` (3,) [m, m, rad].
 
