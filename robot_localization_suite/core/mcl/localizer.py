@@ -46,7 +46,7 @@ __all__ = ["MclSettings", "MonteCarloLocalizer", "LASER_MODEL_TYPES", "ROBOT_MOD
 
 _MIN_INITIAL_STD_XY = 0.02  # [m]
 _MIN_INITIAL_STD_YAW = 0.01  # [rad]
-_RIVAL_SAMPLES = 128  # poses per rival hypothesis, and the cloud's heaviest particles it is weighed against
+_RIVAL_SAMPLES = 128  # poses per rival hypothesis (docs/mcl.md, "Rival hypotheses")
 
 
 @dataclass
@@ -602,12 +602,8 @@ class MonteCarloLocalizer:
         # The rival's odds exceed rival_odds: the cloud (whose odds are now below 1 / rival_odds) moves there.
         self.rivals.rivals.remove(winner)
         count_now = len(self.particles)
-        chosen = self.rng.integers(0, len(winner.samples), count_now)
-        jitter = self.rng.standard_normal((count_now, 3)) * np.array(
-            [s.initial_std_xy, s.initial_std_xy, s.initial_std_yaw]) * 0.25
-        particles = winner.samples[chosen] + jitter
-        particles[:, 2] = wrap_angle(particles[:, 2])
-        self.particles = particles
+        self.particles = self._draw_around(winner.samples, np.ones(len(winner.samples)), count_now,
+                                           0.25 * s.initial_std_xy, 0.25 * s.initial_std_yaw)
         self.log_weights = np.zeros(count_now)
         return True
 

@@ -41,6 +41,13 @@ def _check_weight(name: str, value: float) -> None:
         raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _end_cell(x, y, c, s, beam_x, beam_y, origin_x, origin_y, inverse_resolution):
+    """A beam's end point from the laser pose (x, y, cos, sin), in grid coordinates [cells]."""
+    return (x + c * beam_x - s * beam_y - origin_x) * inverse_resolution, \
+        (y + s * beam_x + c * beam_y - origin_y) * inverse_resolution
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam_x, beam_y, off_map, out):
     height, width = table.shape
@@ -51,10 +58,9 @@ def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam
         s = math.sin(poses[p, 2])
         total = 0.0
         for b in range(beam_x.shape[0]):
-            ex = x + c * beam_x[b] - s * beam_y[b]
-            ey = y + s * beam_x[b] + c * beam_y[b]
-            ix = int(math.floor((ex - origin_x) * inverse_resolution))
-            iy = int(math.floor((ey - origin_y) * inverse_resolution))
+            ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
+            ix = int(math.floor(ex))
+            iy = int(math.floor(ey))
             if ix >= 0 and iy >= 0 and ix < width and iy < height:
                 total += table[iy, ix]
             else:
@@ -73,10 +79,9 @@ def _agreement_kernel(near, origin_x, origin_y, inverse_resolution, poses, weigh
         c = math.cos(poses[p, 2])
         s = math.sin(poses[p, 2])
         for b in range(beam_x.shape[0]):
-            ex = x + c * beam_x[b] - s * beam_y[b]
-            ey = y + s * beam_x[b] + c * beam_y[b]
-            ix = int(math.floor((ex - origin_x) * inverse_resolution))
-            iy = int(math.floor((ey - origin_y) * inverse_resolution))
+            ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
+            ix = int(math.floor(ex))
+            iy = int(math.floor(ey))
             if ix >= 0 and iy >= 0 and ix < width and iy < height and near[iy, ix]:
                 out[b] += weights[p]
 
@@ -121,8 +126,7 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
         gy = (y - origin_y) * inverse_resolution
         total = 0.0
         for b in range(beam_x.shape[0]):
-            ex = (x + c * beam_x[b] - s * beam_y[b] - origin_x) * inverse_resolution
-            ey = (y + s * beam_x[b] + c * beam_y[b] - origin_y) * inverse_resolution
+            ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
             ix = int(math.floor(ex))
             iy = int(math.floor(ey))
             inside = ix >= 0 and iy >= 0 and ix < width and iy < height
