@@ -261,6 +261,21 @@ def test_an_initial_pose_with_an_unusable_covariance_gets_the_default_spread_and
     assert "is not positive definite: using the default spread (std 0.5 m, 0.5 m, 15 deg)" in logs.text()
 
 
+def test_a_stamped_initial_pose_is_moved_on_by_the_odometry_since_and_older_than_it_is_said() -> None:
+    """RViz stamps the pose when clicked: the robot has moved since. A pose older than the odometry kept
+    (received before activation) can only be moved on from the oldest odometry: a warning says so."""
+    adapter, core, logs = make_adapter()
+    pose = np.array([1.0, 2.0, 0.0])
+    adapter.on_odometry(10.0, np.array([0.0, 0.0, 0.0]))
+    adapter.on_odometry(11.0, np.array([0.4, 0.0, 0.5]))
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(10.0, pose, np.diag([0.04, 0.04, 0.01])))
+    np.testing.assert_allclose(core.initial_poses[-1], [1.4, 2.0, 0.5], atol=1e-9)
+    assert "before the oldest odometry" not in logs.text()
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(9.0, pose, np.diag([0.04, 0.04, 0.01])))
+    np.testing.assert_allclose(core.initial_poses[-1], [1.4, 2.0, 0.5], atol=1e-9)
+    assert "initial pose stamped 1.00 s before the oldest odometry kept" in logs.text()
+
+
 def test_a_scan_whose_angle_max_disagrees_with_its_increment_is_skipped_naming_the_values() -> None:
     adapter, core, logs = make_adapter()
     msg = scan_msg(1.0, [1.0] * 5)

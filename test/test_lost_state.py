@@ -65,6 +65,26 @@ def test_a_lost_estimate_gives_no_pose_and_no_map_to_odom_through_the_adapter(na
     assert not [text for level, text in logs if level == "warn"], logs  # LOST is a state, not a fault
 
 
+def test_an_initializing_estimate_gives_no_pose(tmp_path: Path) -> None:
+    """IAL before its first contraction (too few readings) holds the whole map's box: INITIALIZING, no pose
+    (it used to publish the map's centre), diagnostics say so; the next real scan gives a pose."""
+    plugin = registry.plugin("ial_localizer")
+    adapter = LocalizerAdapter(plugin.create(plugin.load_settings({})[1]), node_name="ial_localizer",
+                               log=lambda level, text: None)
+    assert adapter.on_map_msg(conversions.grid_map_to_msg(room(), 0.0))
+    adapter.on_odom_msg(conversions.odometry_to_msg(1.0, TRUTH, frame_id="odom"))
+    ranges = np.full(BEAMS, np.inf)
+    ranges[:2] = 1.0  # two readings: fewer than max_outliers + 1, the boxes stay uncontracted
+    waiting = adapter.on_scan_msg(scan(1.0, ranges))
+    assert waiting is not None and waiting.estimate.status is LocalizerStatus.INITIALIZING
+    assert np.all(np.isfinite(waiting.estimate.pose))  # the core still reports the hull's centre ...
+    assert not waiting.has_pose and waiting.pose is None and waiting.map_to_odom is None  # ... nobody receives it
+    assert waiting.diagnostics.status[0].message == "INITIALIZING"
+    adapter.on_odom_msg(conversions.odometry_to_msg(2.0, TRUTH, frame_id="odom"))
+    found = adapter.on_scan_msg(real_scan(2.0))
+    assert found is not None and found.estimate.status is not LocalizerStatus.INITIALIZING and found.has_pose
+
+
 class Probe:
     """A node of the test's own, subscribed over DDS to what the localizer publishes."""
 

@@ -210,7 +210,8 @@ def test_the_cores_python_log_reaches_the_nodes_ros_log() -> None:
 
 def test_slow_work_runs_off_the_executor_with_progress_in_the_diagnostics() -> None:
     """A map from the topic is set up in a worker thread: meanwhile the node drops scans, answers its
-    services and publishes INITIALIZING with the percent done of the work's progress bars."""
+    services and publishes INITIALIZING with the percent done of the work's progress bars; an initial pose
+    received meanwhile is applied when the map is ready, moved on by the odometry received meanwhile."""
     import threading
     from types import SimpleNamespace
 
@@ -257,10 +258,19 @@ def test_slow_work_runs_off_the_executor_with_progress_in_the_diagnostics() -> N
                                               range_min=scan.range_min, range_max=scan.range_max))
         assert not published  # dropped while busy
         node._on_nomotion(Empty.Request(), Empty.Response())  # services still answer
+        # An initial pose meanwhile waits for the map; the odometry meanwhile is kept and moves it on to now.
+        given = np.array([2.0, 5.0, 0.0])
+        node._on_odom(conversions.odometry_to_msg(10.0, np.array([0.0, 0.0, 0.0]), frame_id="odom"))
+        node._on_odom(conversions.odometry_to_msg(10.5, np.array([0.5, 0.0, 0.0]), frame_id="odom"))
+        node._on_initial_pose(conversions.initial_pose_to_msg(10.0, given, np.diag([1e-4, 1e-4, 1e-4])))
+        assert node._deferred
         release.set()
         assert node._work.wait(60)
         node._watch_inputs()
         assert not node._work.busy and adapter.has_map and node._map_received
+        assert not node._deferred
+        particles = adapter.localizer.particles
+        assert np.allclose(particles[:, :2].mean(axis=0), [2.5, 5.0], atol=0.05)
     finally:
         release.set()
         node.destroy_node()

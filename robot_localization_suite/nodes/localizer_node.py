@@ -133,6 +133,9 @@ class LocalizerNode(LifecycleNode):
         # Slow work (a new map, precomputation for the scanner) runs here, off the executor.
         self._work = BackgroundWork(self._log)
         self._pending_map: Any = None
+        # Requests that restart the method (initial pose, global localization) received during that work: applied,
+        # in order, when it ends (the method is being set up in another thread meanwhile).
+        self._deferred: list[Callable[[], None]] = []
         self.get_logger().info(f"{self.get_name()} unconfigured: waiting for the configure transition")
 
     # -- parameters -------------------------------------------------------------------------
@@ -232,6 +235,7 @@ class LocalizerNode(LifecycleNode):
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._destroy_entities()
         self.adapter = None
+        self._deferred.clear()
         self.get_logger().info("cleaned up")
         return TransitionCallbackReturn.SUCCESS
 
@@ -403,8 +407,11 @@ class LocalizerNode(LifecycleNode):
                          then=received)
 
     def _after_work(self) -> None:
-        """On the executor: report a job that ended, then set up a map that came meanwhile."""
+        """On the executor: report a job that ended, apply the requests that came meanwhile, then set up a map that
+        came meanwhile."""
         self._work.poll()
+        while not self._work.busy and self._deferred:
+            self._deferred.pop(0)()
         if not self._work.busy and self._pending_map is not None and self.adapter is not None:
             grid_map, self._pending_map = self._pending_map, None
             if not self.adapter.is_current_map(grid_map):
@@ -469,16 +476,18 @@ class LocalizerNode(LifecycleNode):
                 self.publish(update(msg), stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
-        if self._accepting("odometry", "odometry") and not self._busy("odometry"):
+        # Kept by the adapter during background work too: a pose given meanwhile is moved on by it afterwards.
+        if self._accepting("odometry", "odometry"):
             assert self.adapter is not None
             self.adapter.on_odom_msg(msg)
-            self._odometry_arrived()
+            if not self._busy("inputs waiting for odometry"):
+                self._odometry_arrived()
 
     def _on_tf(self, msg: Any) -> None:
         """Odometry from /tf (odom_source tf): ``odom -> base`` at the stamp of each transform on the way."""
         ns = self.node_settings
         stored = self.tf_buffer.add_message(msg, static=False)
-        if not stored or not self._accepting("odometry", "odometry") or self._busy("odometry"):
+        if not stored or not self._accepting("odometry", "odometry"):
             return
         on_the_way = self.tf_buffer.chain(ns.odom_frame_id, ns.base_frame_id)
         if on_the_way is None:
@@ -489,7 +498,8 @@ class LocalizerNode(LifecycleNode):
                 pose = self.tf_buffer.lookup(ns.odom_frame_id, ns.base_frame_id, transform.stamp)
                 if pose is not None:
                     self.adapter.on_odometry(transform.stamp, pose)
-        self._odometry_arrived()
+        if not self._busy("inputs waiting for odometry"):
+            self._odometry_arrived()
 
     def _on_tf_static(self, msg: Any) -> None:
         self.tf_buffer.add_message(msg, static=True)
@@ -539,8 +549,22 @@ class LocalizerNode(LifecycleNode):
             self._pending_initial_pose = initial_pose_from_msg(msg)
             self.get_logger().info("initial pose received while inactive: applied on activation")
             return
-        if self.adapter.on_initial_pose_msg(msg):
+        if self._when_idle("initial pose", lambda: self._apply_initial_pose(msg)):
+            return
+        self._apply_initial_pose(msg)
+
+    def _apply_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        if self.adapter is not None and self.adapter.on_initial_pose_msg(msg):
             self._fresh_method = False
+
+    def _when_idle(self, what: str, request: Callable[[], None]) -> bool:
+        """Defer ``request`` to the end of the background work, if any runs (True then)."""
+        self._after_work()
+        if not self._work.busy:
+            return False
+        self._deferred.append(request)
+        self.get_logger().info(f"{what} received during '{self._work.what}': applied when it ends")
+        return True
 
     def _set_initial_pose(self, pose: np.ndarray, covariance: np.ndarray | None, source: str) -> None:
         assert self.adapter is not None
@@ -555,7 +579,9 @@ class LocalizerNode(LifecycleNode):
     def _on_reinitialize(self, request: Empty.Request, response: Empty.Response) -> Empty.Response:
         adapter = self.adapter
         if adapter is not None:
-            guarded(self, lambda _: adapter.reinitialize(), "reinitialize")(None)
+            reinitialize = guarded(self, lambda _: adapter.reinitialize(), "reinitialize")
+            if not self._when_idle("global localization request", lambda: reinitialize(None)):
+                reinitialize(None)
         return response
 
     def _on_nomotion(self, request: Empty.Request, response: Empty.Response) -> Empty.Response:
@@ -603,7 +629,7 @@ class LocalizerNode(LifecycleNode):
                 self._send_tf(self._last_tf[1], max(input_stamp, self._last_tf[0]))
             return
         estimate = output.estimate
-        if output.has_pose:  # LOST or not finite: no pose, no new map -> odom (diagnostics and candidates only)
+        if output.has_pose:  # LOST, INITIALIZING or not finite: no pose, no new map -> odom (diagnostics and candidates only)
             self.pose_pub.publish(output.pose)
             self.last_pose = (estimate.pose.copy(), estimate.covariance.copy())
         self.candidates_pub.publish(output.candidates)

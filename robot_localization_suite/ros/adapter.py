@@ -74,8 +74,8 @@ class AdapterOutput:
     estimate does not pay for turning 50,000 particles into a PoseArray.
 
     Attributes:
-        has_pose: whether there is a pose to publish: the estimate is not LOST (LOST means it has nothing
-            worth using: diagnostics and candidates only) and its pose and covariance are finite.
+        has_pose: whether there is a pose to publish: the estimate is neither LOST (nothing worth using:
+            diagnostics and candidates only) nor INITIALIZING (no fix yet), and its pose and covariance are finite.
         map_to_odom: ``(3,)`` the ``map -> odom`` transform this estimate implies (None without odometry or
             without a pose).
         odometry_lag: how far [s] the estimate's stamp lies after the newest odometry used for it.
@@ -94,7 +94,7 @@ class AdapterOutput:
         odometry_lag: float = math.inf,
     ) -> None:
         self.estimate = estimate
-        self.has_pose = estimate.status is not LocalizerStatus.LOST and _finite_estimate(estimate)
+        self.has_pose = _publishes_pose(estimate)
         self.update_ms = update_ms
         self.frame_id = frame_id
         self.map_to_odom = map_to_odom
@@ -125,6 +125,15 @@ def _finite_estimate(estimate: Estimate) -> bool:
     return bool(np.all(np.isfinite(estimate.pose)) and np.all(np.isfinite(estimate.covariance)))
 
 
+_NO_POSE_STATES = (LocalizerStatus.LOST, LocalizerStatus.INITIALIZING)
+
+
+def _publishes_pose(estimate: Estimate) -> bool:
+    """LOST (nothing worth using) and INITIALIZING (no fix yet: IAL's whole-map box, MCL's uniform cloud) publish no
+    pose; neither does a non-finite estimate."""
+    return estimate.status not in _NO_POSE_STATES and _finite_estimate(estimate)
+
+
 def _same_map(a: Any, b: Any) -> bool:
     """Same cells, resolution and origin; OccupancyGrid stores the resolution as float32, hence the tolerance."""
     return (
@@ -140,6 +149,8 @@ DEFAULT_INITIAL_STD = np.array([0.5, 0.5, math.pi / 12.0])
 # Odometry poses held at most for a later sensor input (a few minutes of a fast odometry source):
 # beyond, the oldest go to the localizer (or are dropped while the mount is not known).
 _MAX_HELD_ODOMETRY = 20_000
+# An initial pose stamped this much [s] before the oldest odometry cannot be moved on to now in full: warned.
+_INITIAL_POSE_GAP_S = 0.2
 
 
 def _covariance_problem(covariance: NDArray[np.float64]) -> str | None:
@@ -397,6 +408,10 @@ class LocalizerAdapter:
         if stamp > 0.0 and then is not None and now is not None:
             # A pose of the past (RViz stamps it when clicked): moved on by the odometry since, as nav2_amcl does.
             pose = compose(pose, relative(then, now))
+            oldest = self.odometry.oldest_stamp
+            if oldest is not None and stamp < oldest - _INITIAL_POSE_GAP_S:
+                self.log("warn", "initialpose_old", f"initial pose stamped {oldest - stamp:.2f} s before the oldest "
+                         "odometry kept (odometry counts from activation): moved on by the odometry since then only")
         problem = _covariance_problem(covariance)
         if problem is not None:
             shown = [[float(f"{value:.6g}") for value in row] for row in covariance.tolist()]  # np.round overflows
@@ -538,12 +553,12 @@ class LocalizerAdapter:
         )
 
     def build_output(self, estimate: Estimate, update_ms: float) -> AdapterOutput:
-        """The output of an estimate; a LOST one, or one whose pose or covariance is not finite, gets no pose and
-        no ``map -> odom``."""
+        """The output of an estimate; a LOST or INITIALIZING one, or one whose pose or covariance is not finite, gets
+        no pose and no ``map -> odom``."""
         base = self.to_base_estimate(estimate)
         odom = self.odometry.at(base.stamp)
-        has_pose = base.status is not LocalizerStatus.LOST and _finite_estimate(base)
-        if not has_pose and base.status is not LocalizerStatus.LOST:
+        has_pose = _publishes_pose(base)
+        if not has_pose and base.status not in _NO_POSE_STATES:
             self.log("warn", "estimate_nan", f"{base.status.value} estimate at {base.stamp:.3f} s has a non-finite pose "
                      f"{base.pose.tolist()!r} or covariance: no pose published")
         return AdapterOutput(

@@ -122,6 +122,11 @@ class OdometryGate:
         return True
 
     @property
+    def oldest_stamp(self) -> float | None:
+        """Stamp [s] of the oldest odometry pose kept (None before any)."""
+        return self._stamps[0] if self._stamps else None
+
+    @property
     def latest(self) -> Pose | None:
         """The last odometry pose (None before any)."""
         return self._poses[-1] if self._poses else None
