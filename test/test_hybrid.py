@@ -234,6 +234,38 @@ def test_a_slow_proposal_source_never_delays_a_tracking_update(office: GridMap) 
     assert taken is not None and stamps[0] < taken.stamp
 
 
+def test_waiting_for_the_workers_makes_a_replay_reproducible_whatever_they_take(office: GridMap) -> None:
+    """``wait_for_workers``: a background answer is taken at the next update, however long it took; two
+    replays of a kidnapping whose source answers after different delays give the same estimates."""
+    kidnap = 40
+    run = drive(office, steps=90, seed=6, kidnap_step=kidnap, kidnap_index=9)
+
+    def replay(delays: np.random.Generator) -> tuple[list[tuple[int, Estimate]], list[float]]:
+        asked: list[float] = []
+
+        def slow(scan: Scan) -> Estimate:
+            asked.append(scan.stamp)
+            threading.Event().wait(float(delays.uniform(0.0, 0.05)))  # a source as slow as the machine makes it
+            return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
+
+        hybrid = HybridLocalizer(_settings(Path("unused"), wait_for_workers=True, ir_every_updates=1),
+                                 sources=[ProposalSource("slow", slow, background=True)])
+        hybrid.set_map(office)
+        return _replay(hybrid, run), asked
+
+    first, first_asked = replay(np.random.default_rng(1))
+    second, second_asked = replay(np.random.default_rng(2))
+    assert [k for k, _ in first] == [k for k, _ in second] and first_asked == second_asked
+    for (_, a), (_, b) in zip(first, second, strict=True):
+        np.testing.assert_array_equal(a.pose, b.pose)
+        assert a.status is b.status
+    # every answer was used by the update after its question: one query in flight per update
+    assert all(estimate.details["slow_queries"] >= 1 for _, estimate in first)
+    # and the answers, a scan late, still recover the kidnapping
+    after = [pose_error(estimate.pose, run.truth[k])[0] for k, estimate in first if k > kidnap]
+    assert after[0] > 1.0 and len(after) >= 6 and max(after[1:]) < 0.3, after
+
+
 def test_a_proposal_source_that_raises_is_logged_and_skipped_and_the_tracking_goes_on(office: GridMap) -> None:
     run = drive(office, steps=200, seed=9)
     logged: list[str] = []

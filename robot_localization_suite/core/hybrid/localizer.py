@@ -71,7 +71,7 @@ class HybridLocalizer:
         self.sources = list(sources)
         self.monitor = (IntegrityMonitor(s.ial, s.integrity_margin_xy, s.integrity_margin_yaw, s.ambiguity_distance)
                         if s.integrity_monitor else None)
-        self.runner = ProposalRunner(self.sources, log)
+        self.runner = ProposalRunner(self.sources, log, wait=s.wait_for_workers)
         self.grid_map: GridMap | None = None
         self._seed_pending = True
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
@@ -136,7 +136,10 @@ class HybridLocalizer:
         if self.grid_map is None:
             return self.mcl.on_scan(scan)
         if self.monitor is not None:
-            self.monitor.submit(scan)
+            if self.settings.wait_for_workers:
+                self.monitor.wait()  # the boxes of the previous scan, always; this scan's update after the verdict
+            else:
+                self.monitor.submit(scan)
         gate = self.mcl.odometry
         odom = gate.at(scan.stamp)
         due = gate.forced if odom is None else gate.due(odom)
@@ -154,10 +157,12 @@ class HybridLocalizer:
                 else:
                     notes.update(self._recover(scan, pool, fits, odom))
         estimate = self.mcl.on_scan(scan)
+        if estimate is not None:
+            estimate = self._integrity(scan, self._verdict(scan, estimate, pool))
+        if self.monitor is not None and self.settings.wait_for_workers:
+            self.monitor.submit(scan)
         if estimate is None:
             return None
-        estimate = self._verdict(scan, estimate, pool)
-        estimate = self._integrity(scan, estimate)
         estimate = replace(estimate, details={**estimate.details, **notes, **self.runner.details(),
                                               "better_updates": self._better_count})
         self.last_estimate = estimate

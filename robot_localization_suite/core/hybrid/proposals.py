@@ -70,8 +70,10 @@ class ProposalRunner:
         log: ``log(level, text)``; default: this module's logger.
     """
 
-    def __init__(self, sources: list[ProposalSource], log: Callable[[str, str], None] | None = None) -> None:
+    def __init__(self, sources: list[ProposalSource], log: Callable[[str, str], None] | None = None, *,
+                 wait: bool = False) -> None:
         self._states = {source.name: _SourceState(source) for source in sources}
+        self.wait = wait  # collect() waits for the queries in flight (reproducible replay)
         self._log = log or (lambda level, text: _LOG.warning(text) if level == "warn" else _LOG.info(text))
         self._generation = 0
 
@@ -116,11 +118,12 @@ class ProposalRunner:
         return found
 
     def collect(self) -> list[Proposal]:
-        """The results of background queries that have ended since the last call (failures are skipped)."""
+        """The results of background queries that have ended since the last call (failures are skipped); with
+        ``wait``, of every query in flight, waiting for those still running."""
         found = []
         for state in self._states.values():
             future = state.future
-            if future is not None and future.done():
+            if future is not None and (self.wait or future.done()):
                 state.future = None
                 found.extend(self._result(state, future, state.future_stamp))
         return found

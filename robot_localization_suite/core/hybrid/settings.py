@@ -84,6 +84,11 @@ class HybridSettings(Settings):
         high=1e4)
     ambiguity_angle: float = setting(
         0.5, "... or turned more than this from it", unit="rad", low=0.0, low_open=True, high=math.pi)
+    wait_for_workers: bool = setting(
+        False, "reproducible replay: each worker's result (IR, PIL while LOCALIZED, the integrity monitor's IAL "
+        "update) is taken at the next update, which waits for it if need be, instead of whenever it ends; the "
+        "same bag then gives the same output on any machine and load, and an update's time includes the wait "
+        "(docs/hybrid.md)")
     integrity_monitor: bool = setting(
         False, "(off by default: IAL's kernels hold the Python lock, so a global start blocks updates for seconds; "
         "docs/hybrid.md) IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
