@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import io
+import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -76,3 +81,76 @@ def test_node_output_goes_to_one_log_per_node(tmp_path) -> None:  # noqa: ANN001
     logs.close()
     assert (tmp_path / "logs" / "scan_sim.log").read_text() == "one\nthree\n"
     assert (tmp_path / "logs" / "mcl_baseline.log").read_text() == "two\n"
+
+
+# -- a short demo run: its recording and layouts ----------------------------------------------------
+_RUN_LOCALIZERS = ["mcl_baseline", "ial_localizer"]  # IAL also publishes its boxes as markers
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("demo")
+    result = subprocess.run(
+        [sys.executable, "-m", "robot_localization_suite.launch.demo", "--localizers", ",".join(_RUN_LOCALIZERS),
+         "--speed", "4", "--duration", "25", "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    text = result.stdout + result.stderr
+    assert result.returncode == 0, text
+    (run_dir,) = out.iterdir()
+    return run_dir, text
+
+
+def test_the_demo_output_has_no_nan_and_no_node_lines(demo_run: tuple[Path, str]) -> None:
+    _run_dir, text = demo_run
+    assert "nan" not in text.lower(), text
+    assert all(line.startswith("[demo] ") for line in text.splitlines()), text
+
+
+def test_the_recording_holds_every_topic_with_ros2msg_schemas(demo_run: tuple[Path, str]) -> None:
+    from mcap.reader import make_reader
+
+    from robot_localization_suite.ros.recording import error_topic, run_topics
+
+    run_dir, text = demo_run
+    (path,) = (run_dir / "recording").glob("*.mcap")
+    assert f"recording: {run_dir / 'recording'}" in text
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and summary.statistics is not None
+    counts = summary.statistics.channel_message_counts
+    channels = {channel.topic: channel for channel in summary.channels.values()}
+    expected = {topic.name for topic in run_topics(_RUN_LOCALIZERS, camera=False)}
+    expected |= {error_topic(name) for name in _RUN_LOCALIZERS}
+    assert {"/map", "/scan", "/ground_truth", "/tf", "/tf_static", "/diagnostics", "/ial_localizer/boxes",
+            "/mcl_baseline/pose", "/mcl_baseline/candidates"} <= expected
+    assert expected <= set(channels), sorted(expected - set(channels))
+    for topic in expected:
+        channel = channels[topic]
+        schema = summary.schemas[channel.schema_id]
+        assert (schema.encoding, channel.message_encoding) == ("ros2msg", "cdr"), topic
+        assert schema.data, topic
+        assert counts[channel.id] >= 1, topic
+    assert summary.schemas[channels["/ial_localizer/boxes"].schema_id].name == "visualization_msgs/msg/MarkerArray"
+    # /tf holds scan_sim's odom -> base_link and the true map -> odom, never a localizer's.
+    from robot_localization_suite.ros.bag import read_bag
+
+    links = {(t.header.frame_id, t.child_frame_id) for m in read_bag(run_dir / "recording", ["/tf"])
+             for t in m.msg.transforms}
+    assert links == {("odom", "base_link"), ("map", "odom")}
+
+
+def test_the_layouts_are_json_naming_recorded_topics(demo_run: tuple[Path, str]) -> None:
+    from robot_localization_suite.launch.foxglove_layout import LAYOUT_FILE, demo_layout, layout_topics
+    from robot_localization_suite.registry import PLUGINS, config_dir
+    from robot_localization_suite.ros.bag import bag_topics
+
+    packaged = json.loads((config_dir() / LAYOUT_FILE).read_text())
+    assert packaged == json.loads(json.dumps(demo_layout(list(PLUGINS)))), "rewrite it: python -m ...foxglove_layout"
+    run_dir, _text = demo_run
+    layout = json.loads((run_dir / "foxglove_layout.json").read_text())
+    named = layout_topics(layout)
+    assert {"/map", "/ground_truth", "/mcl_baseline/pose", "/rls_demo/mcl_baseline/error"} <= named
+    assert named <= set(bag_topics(run_dir / "recording")), sorted(named - set(bag_topics(run_dir / "recording")))
+    # The packaged layout names the same topics for every localizer.
+    assert {f"/{name}/pose" for name in PLUGINS} <= layout_topics(packaged)

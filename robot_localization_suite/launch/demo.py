@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import json
 import math
 import os
 import signal
@@ -36,6 +37,7 @@ import numpy as np
 from ..core import metrics
 from ..registry import PLUGINS, config_dir
 from .dds import use_loopback
+from .foxglove_layout import demo_layout
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
 __all__ = ["DemoMonitor", "LocalizerTrack", "MonitorDisplay", "NodeLogs", "SummaryRow", "row_text", "build_specs", "default_domain_id", "resolve_scenario", "main"]
@@ -80,8 +82,11 @@ class DemoMonitor:
     waits until ground truth at or after its stamp has arrived.
     """
 
-    def __init__(self, localizers: Sequence[str]) -> None:
+    def __init__(self, localizers: Sequence[str],
+                 on_scored: Callable[[str, np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> None:
+        """``on_scored(name, stamps [s], position errors [m], heading errors [rad])`` sees each batch scored."""
         self.tracks = {name: LocalizerTrack(name) for name in localizers}
+        self.on_scored = on_scored
         self.truth_stamps: list[float] = []
         self.truth_poses: list[np.ndarray] = []
         self.kidnappings: list[float] = []
@@ -153,6 +158,8 @@ class DemoMonitor:
                 if known.any():
                     track.last_error = (float(dxy[known][-1]), float(dtheta[known][-1]))
                     track.last_error_stamp = float(stamps[known][-1])
+                    if self.on_scored is not None:
+                        self.on_scored(track.name, stamps[known], dxy[known], dtheta[known])
 
     def new_events(self) -> list[str]:
         """Announcements not yet made (kidnappings), each once: they stay above the redrawn block."""
@@ -409,6 +416,28 @@ def build_specs(scenario_path: Path, map_yaml: Path, localizers: Sequence[str], 
     return specs
 
 
+def _start_recording(run_dir: Path, monitor: DemoMonitor, localizers: Sequence[str], camera: bool,
+                     sinks: list[Any]) -> tuple[Any, Any]:
+    """A node tapping the run's topics into ``<run>/recording`` (MCAP) and into ``sinks`` (the live server).
+
+    The monitor's scored errors go the same way, on :func:`..ros.recording.error_topic`.
+    """
+    from rclpy.node import Node
+
+    from ..ros.recording import ERROR_TYPE, RunRecording, RunTap, error_message, error_topic, run_topics
+
+    recording = RunRecording(run_dir / "recording")
+    node = Node("rls_demo_recorder")
+    tap = RunTap(node, run_topics(localizers, camera=camera), [recording, *sinks])
+
+    def scored(name: str, stamps: np.ndarray, dxy: np.ndarray, dtheta: np.ndarray) -> None:
+        for stamp, error_xy, error_theta in zip(stamps, dxy, dtheta, strict=True):
+            tap.emit(error_topic(name), ERROR_TYPE, error_message(stamp, error_xy, error_theta), int(stamp * 1e9))
+
+    monitor.on_scored = scored
+    return node, recording
+
+
 def run_directory(out: str | os.PathLike[str], scenario_name: str) -> Path:
     """A new directory of this run under ``out``: ``<UTC time>_<scenario>`` (``_2``, ``_3`` ... if taken)."""
     base = Path(out) / f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}_{scenario_name}"
@@ -542,6 +571,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     monitor = DemoMonitor(localizers)
+    sinks: list[Any] = []
     stop = threading.Event()
     install_stop_handlers(stop)
     # Our handlers stop the nodes in order; rclpy must not take SIGINT over.
@@ -549,6 +579,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     monitor_node = MonitorNode(monitor, display, period)
     executor = SingleThreadedExecutor()
     executor.add_node(monitor_node.node)
+    recorder_node, recording = _start_recording(run_dir, monitor, localizers, scenario.camera is not None,
+                                                 sinks)
+    executor.add_node(recorder_node)
+    say(f"recording into {recording.path}")
     spinner = threading.Thread(target=executor.spin, daemon=True, name="monitor")
     spinner.start()
 
@@ -571,6 +605,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         executor.shutdown(timeout_sec=2.0)
         spinner.join(timeout=5.0)
         monitor_node.node.destroy_node()
+        recorder_node.destroy_node()
+        recording_size = recording.close()
         rclpy.try_shutdown()
         display.update(monitor.new_events(), monitor.status_lines())
         display.finish()
@@ -585,6 +621,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         say("stopped")
     for line in monitor.summary_table().splitlines():
         say(line)
+    layout_path = run_dir / "foxglove_layout.json"
+    layout_path.write_text(json.dumps(demo_layout(localizers, camera=scenario.camera is not None), indent=2) + "\n")
+    say(f"recording: {recording.path} ({recording_size / 1e6:.1f} MB); open it in Foxglove with the layout {layout_path}")
     failed = [name for name, code in result.exit_codes.items() if code not in (0, -signal.SIGINT)]
     if failed:
         say(f"nodes that failed: {', '.join(f'{n} ({result.exit_codes[n]})' for n in failed)}; "
