@@ -438,6 +438,15 @@ def _start_recording(run_dir: Path, monitor: DemoMonitor, localizers: Sequence[s
     return node, recording
 
 
+def _start_live_server(localizers: Sequence[str], camera: bool, port: int) -> Any:
+    """The Foxglove WebSocket server of the recorded topics and the scored errors (:mod:`..ros.foxglove_live`)."""
+    from ..ros.foxglove_live import LiveServer
+    from ..ros.recording import ERROR_TYPE, error_topic, run_topics
+
+    topics = [(topic.name, topic.type_name) for topic in run_topics(localizers, camera=camera)]
+    return LiveServer(topics + [(error_topic(name), ERROR_TYPE) for name in localizers], port=port)
+
+
 def run_directory(out: str | os.PathLike[str], scenario_name: str) -> Path:
     """A new directory of this run under ``out``: ``<UTC time>_<scenario>`` (``_2``, ``_3`` ... if taken)."""
     base = Path(out) / f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}_{scenario_name}"
@@ -505,6 +514,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="directory under which each run gets its own, with the nodes' logs (results/demo)")
     parser.add_argument("--verbose", action="store_true",
                         help="show the nodes' own output inline too (it always goes to the run's logs/)")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="serve the recorded topics live over the Foxglove WebSocket protocol on loopback "
+                             "(needs foxglove-sdk: the 'viz' extra, which make installs)")
+    parser.add_argument("--foxglove-port", type=int, default=8765,
+                        help="port of the --foxglove server on 127.0.0.1 (8765; 0: a free one)")
     args = parser.parse_args(argv)
     if not args.speed > 0.0:
         parser.error(f"--speed must be > 0, got {args.speed!r}")
@@ -572,6 +586,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     monitor = DemoMonitor(localizers)
     sinks: list[Any] = []
+    server = None
+    if args.foxglove:
+        try:
+            server = _start_live_server(localizers, scenario.camera is not None, args.foxglove_port)
+        except (ImportError, RuntimeError) as exc:
+            print(f"rls_demo: --foxglove: {exc}", file=sys.stderr)
+            return 2
+        sinks.append(server)
+        url = server.app_url()
+        say(f"Foxglove: open connection {server.address}" + (f" (or {url})" if url else ""))
     stop = threading.Event()
     install_stop_handlers(stop)
     # Our handlers stop the nodes in order; rclpy must not take SIGINT over.
@@ -607,6 +631,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         monitor_node.node.destroy_node()
         recorder_node.destroy_node()
         recording_size = recording.close()
+        if server is not None:
+            server.close()
         rclpy.try_shutdown()
         display.update(monitor.new_events(), monitor.status_lines())
         display.finish()
