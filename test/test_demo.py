@@ -154,3 +154,14 @@ def test_the_layouts_are_json_naming_recorded_topics(demo_run: tuple[Path, str])
     assert named <= set(bag_topics(run_dir / "recording")), sorted(named - set(bag_topics(run_dir / "recording")))
     # The packaged layout names the same topics for every localizer.
     assert {f"/{name}/pose" for name in PLUGINS} <= layout_topics(packaged)
+
+
+def test_the_run_ends_with_a_picture_next_to_the_recording(demo_run: tuple[Path, str]) -> None:
+    import matplotlib.image
+
+    run_dir, text = demo_run
+    picture = run_dir / "trajectories.png"
+    assert f"picture: {picture}" in text
+    image = matplotlib.image.imread(picture)
+    assert image.shape[0] > 400 and image.shape[1] > 400
+    assert image[..., :3].std() > 0.05  # a map and paths, not a blank canvas

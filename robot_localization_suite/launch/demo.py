@@ -72,6 +72,7 @@ class LocalizerTrack:
     status: str = "-"
     progress: str = ""  # what an INITIALIZING node prepares, and how far it is
     update_ms: list[float] = field(default_factory=list)
+    path: list[np.ndarray] = field(default_factory=list)  # every finite estimate, for the picture
 
 
 class DemoMonitor:
@@ -122,6 +123,7 @@ class DemoMonitor:
             if not np.all(np.isfinite(pose)):  # counted, never shown nor scored
                 return
             track.last_pose = pose
+            track.path.append(pose)
             track.pending.append((stamp, pose))
 
     def on_diagnostics(self, name: str, status: str, update_ms: float | None, progress: str = "") -> None:
@@ -230,6 +232,32 @@ class DemoMonitor:
                 f"{len(self.kidnappings)} kidnapping(s)"
             )
         return "\n".join(lines)
+
+
+def write_picture(monitor: DemoMonitor, grid_map: Any, path: Path, title: str) -> Path | None:
+    """The run as one PNG: the map, the true path, kidnappings (stars), each localizer's estimates (dots).
+
+    Drawn as the benchmark's trajectory plots are (:mod:`..tools.map_plots`); None when no truth came.
+    """
+    import matplotlib.pyplot as plt
+
+    from ..tools.map_plots import draw_truth, finish_map_axes, save_figure, show_map
+
+    with monitor._lock:
+        if not monitor.truth_poses:
+            return None
+        truth = np.array(monitor.truth_poses)
+        kidnaps = np.array([bisect.bisect_left(monitor.truth_stamps, t) for t in monitor.kidnappings], dtype=np.int64)
+        paths = {name: np.array(track.path).reshape(-1, 3) for name, track in monitor.tracks.items()}
+    fig, axes = plt.subplots(figsize=(8, 8))
+    show_map(axes, grid_map)
+    draw_truth(axes, truth, kidnaps)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"][1:]  # blue is the truth's
+    for index, (name, poses) in enumerate(paths.items()):
+        axes.plot(poses[:, 0], poses[:, 1], ".", ms=3, color=colours[index % len(colours)],
+                  label=f"{name} ({len(poses)} estimates)")
+    finish_map_axes(axes, title)
+    return save_figure(fig, path)
 
 
 def _pose_text(pose: np.ndarray) -> str:
@@ -647,6 +675,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         say("stopped")
     for line in monitor.summary_table().splitlines():
         say(line)
+    from ..core.grid_map import load_map_yaml
+
+    picture = write_picture(monitor, load_map_yaml(map_yaml), run_dir / "trajectories.png",
+                            f"{scenario_path.stem}: the demo's estimates")
+    if picture is not None:
+        say(f"picture: {picture}")
     layout_path = run_dir / "foxglove_layout.json"
     layout_path.write_text(json.dumps(demo_layout(localizers, camera=scenario.camera is not None), indent=2) + "\n")
     say(f"recording: {recording.path} ({recording_size / 1e6:.1f} MB); open it in Foxglove with the layout {layout_path}")
