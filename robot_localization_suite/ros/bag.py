@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from .bag_recovery import RecoveredBag, Recovery
 
 __all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name",
-           "message_class", "message_definition"]
+           "message_class", "message_definition", "bag_bytes"]
 
 LOG = logging.getLogger(__name__)
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -41,6 +41,11 @@ def message_type_name(msg_or_class: Any) -> str:
     cls = msg_or_class if isinstance(msg_or_class, type) else type(msg_or_class)
     package = cls.__module__.split(".")[0]
     return f"{package}/msg/{cls.__name__}"
+
+
+def bag_bytes(path: str | os.PathLike[str]) -> int:
+    """The size of a bag directory (its MCAP files and metadata.yaml) [bytes]."""
+    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
 
 
 def message_definition(type_name: str) -> str:

@@ -24,7 +24,7 @@ from geometry_msgs.msg import PointStamped
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 
-from .bag import BagWriter, message_class
+from .bag import BagWriter, bag_bytes, message_class
 from .conversions import odometry_from_msg, seconds_to_stamp
 from .qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import TFMessage, map_to_odom, tf_message, transform_to_msg
@@ -181,4 +181,4 @@ class RunRecording:
         if self._open:
             self._open = False
             self._writer.__exit__(None, None, None)
-        return sum(p.stat().st_size for p in self.path.rglob("*") if p.is_file())
+        return bag_bytes(self.path)

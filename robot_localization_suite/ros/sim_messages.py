@@ -21,7 +21,7 @@ from ..core.sim.config import REINITIALIZE_TOPIC
 from ..core.sim.settings import ScanSimSettings, build_scenario
 from ..core.sim.simulator import SimulationStep, Simulator
 from . import conversions
-from .bag import BagWriter
+from .bag import BagWriter, bag_bytes
 from .tf import TFMessage, tf_message, transform_to_msg
 
 __all__ = ["StepMessages", "make_simulator", "record"]
@@ -136,7 +136,7 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
             if (reason := stop_requested()) is not None:
                 break
     elapsed = time.perf_counter() - started
-    size = sum(p.stat().st_size for p in Path(bag_dir).rglob("*") if p.is_file())
+    size = bag_bytes(bag_dir)
     written = ", ".join(f"{topic} {count}" for topic, count in counts.items()) + f"; {size / 1e6:.2f} MB"
     if reason is not None:
         log(f"scan_sim: stopped early by {reason} at {simulated:.1f} s of {scenario.end_time:.1f} s simulated; "
