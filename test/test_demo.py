@@ -150,7 +150,7 @@ def test_the_layouts_are_json_naming_recorded_topics(demo_run: tuple[Path, str])
     run_dir, _text = demo_run
     layout = json.loads((run_dir / "foxglove_layout.json").read_text())
     named = layout_topics(layout)
-    assert {"/map", "/ground_truth", "/mcl_baseline/pose", "/rls_demo/mcl_baseline/error"} <= named
+    assert {"/map", "/ground_truth", "/mcl_baseline/pose", "/evaluation/mcl_baseline/error"} <= named
     assert named <= set(bag_topics(run_dir / "recording")), sorted(named - set(bag_topics(run_dir / "recording")))
     # The packaged layout names the same topics for every localizer.
     assert {f"/{name}/pose" for name in PLUGINS} <= layout_topics(packaged)

@@ -29,8 +29,8 @@ from .conversions import odometry_from_msg, seconds_to_stamp
 from .qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
 from .tf import TFMessage, map_to_odom, tf_message, transform_to_msg
 
-__all__ = ["ERROR_TYPE", "RecordedTopic", "RunRecording", "RunTap", "Sink", "error_message", "error_topic",
-           "extra_outputs", "run_topics"]
+__all__ = ["ERROR_TYPE", "RecordedTopic", "RunRecording", "RunTap", "Sink", "TrueMapToOdom", "error_message",
+           "error_topic", "extra_outputs", "run_topics"]
 
 # (topic, type name, CDR bytes, log time [ns])
 Sink = Callable[[str, str, bytes, int], None]
@@ -46,8 +46,8 @@ ERROR_TYPE = "geometry_msgs/msg/PointStamped"
 
 
 def error_topic(localizer: str) -> str:
-    """The topic of a localizer's scored errors in a demo run (written by the demo, not by a node)."""
-    return f"/rls_demo/{localizer}/error"
+    """The topic of a localizer's scored errors in a recording (written by the demo or the benchmark, not a node)."""
+    return f"/evaluation/{localizer}/error"
 
 
 def error_message(stamp: float, position_error_m: float, heading_error_rad: float) -> bytes:
@@ -111,8 +111,7 @@ class RunTap:
         self.sinks = list(sinks)
         self.counts: dict[str, int] = {}
         self._odometry_class = Odometry
-        self._odom: dict[int, tuple[str, Any]] = {}  # stamp [ns] -> (odom frame, odom -> base pose)
-        self._odom_frame = "odom"
+        self._true_map_to_odom = TrueMapToOdom()
         self._lock = threading.Lock()
         for topic in topics:
             node.create_subscription(message_class(topic.type_name), topic.name, self._callback(topic), topic.qos,
@@ -135,7 +134,7 @@ class RunTap:
 
     def _on_tf(self, topic: RecordedTopic, data: bytes) -> None:
         msg = deserialize_message(data, TFMessage)
-        kept = [t for t in msg.transforms if t.child_frame_id.lstrip("/") != self._odom_frame]
+        kept = [t for t in msg.transforms if t.child_frame_id.lstrip("/") != self._true_map_to_odom.odom_frame]
         if len(kept) == len(msg.transforms):
             self.emit(topic.name, topic.type_name, data)
         elif kept:
@@ -146,21 +145,34 @@ class RunTap:
         if TFMessage is None:
             return
         msg = deserialize_message(data, self._odometry_class)
+        transform = self._true_map_to_odom.add(msg, truth=topic.name == "/ground_truth")
+        if transform is not None:
+            self.emit("/tf", "tf2_msgs/msg/TFMessage", serialize_message(tf_message([transform])))
+
+
+class TrueMapToOdom:
+    """Pairs odometry and ground truth of the same stamp into the true ``map -> odom`` (TransformStamped)."""
+
+    def __init__(self) -> None:
+        self.odom_frame = "odom"
+        self._odom: dict[int, tuple[str, Any]] = {}  # stamp [ns] -> (odom frame, odom -> base pose)
+
+    def add(self, msg: Any, *, truth: bool) -> Any:
+        """An ``nav_msgs/Odometry`` of odometry (``truth`` False) or of ground truth; the transform once both came."""
         seconds, pose = odometry_from_msg(msg)
         key = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if topic.name == "/odom":
-            self._odom_frame = msg.header.frame_id.lstrip("/") or self._odom_frame
-            self._odom[key] = (self._odom_frame, pose)
+        if not truth:
+            self.odom_frame = msg.header.frame_id.lstrip("/") or self.odom_frame
+            self._odom[key] = (self.odom_frame, pose)
             if len(self._odom) > 200:  # odometry whose ground truth never came
                 for old in sorted(self._odom)[:100]:
                     del self._odom[old]
-            return
+            return None
         odom = self._odom.pop(key, None)
         if odom is None:
-            return
+            return None
         frame, odom_pose = odom
-        transform = transform_to_msg(seconds, msg.header.frame_id, frame, map_to_odom(pose, odom_pose))
-        self.emit("/tf", "tf2_msgs/msg/TFMessage", serialize_message(tf_message([transform])))
+        return transform_to_msg(seconds, msg.header.frame_id, frame, map_to_odom(pose, odom_pose))
 
 
 class RunRecording:
