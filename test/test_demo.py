@@ -53,7 +53,9 @@ def test_a_lost_localizer_shows_lost_without_the_older_estimates_numbers() -> No
     assert summary["outputs"] == 2 and summary["scored"] == 1
 
 
-def test_the_display_redraws_in_place_on_a_terminal_and_prints_lines_elsewhere() -> None:
+def test_the_display_redraws_in_place_on_a_terminal_and_prints_lines_elsewhere(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "40")
     stream = io.StringIO()
     display = MonitorDisplay(stream, redraw=True)
     display.update([], ["a", "b"])
@@ -63,14 +65,19 @@ def test_the_display_redraws_in_place_on_a_terminal_and_prints_lines_elsewhere()
     # The two-line block is erased (cursor up 2, clear) before the message and before the new block.
     assert text.count("\x1b[2F\x1b[J") == 2
     assert text.endswith("[demo] *** event ***\n[demo] c\n[demo] d\n")
+    # A block line wider than the terminal is cut (a wrapped line would break the redraw), a message is not.
+    display.update([], ["x" * 100])
+    assert stream.getvalue().endswith("\x1b[J[demo] " + "x" * 32 + "\n")
     plain = io.StringIO()
     display = MonitorDisplay(plain, redraw=False)
     display.update([], ["a", "b"])
     display.message("kept")
     display.update(["*** event ***"], ["c", "d"])
-    assert "\x1b" not in plain.getvalue()
+    display.update([], ["x" * 100])
+    assert "\x1b" not in plain.getvalue() and plain.getvalue().endswith("x" * 100 + "\n")
+    display.finish()
     assert plain.getvalue().splitlines() == ["[demo] a", "[demo] b", "[demo] kept", "[demo] *** event ***",
-                                             "[demo] c", "[demo] d"]
+                                             "[demo] c", "[demo] d", "[demo] " + "x" * 100]
 
 
 def test_node_output_goes_to_one_log_per_node(tmp_path) -> None:  # noqa: ANN001

@@ -23,6 +23,7 @@ import bisect
 import json
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -318,8 +319,10 @@ class MonitorDisplay:
             self.stream.write(f"\x1b[{len(self._block)}F\x1b[J")
 
     def _draw(self) -> None:
+        # On a terminal each line is cut to its width: a wrapped line would throw the cursor-up count off.
+        width = shutil.get_terminal_size().columns - 1 if self.redraw else None
         for line in self._block:
-            self.stream.write(f"{self.prefix}{line}\n")
+            self.stream.write(f"{self.prefix}{line}"[:width] + "\n")
 
     def message(self, text: str) -> None:
         """A line that stays (printed above the block on a terminal)."""
