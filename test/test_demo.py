@@ -172,3 +172,15 @@ def test_the_run_ends_with_a_picture_next_to_the_recording(demo_run: tuple[Path,
     image = matplotlib.image.imread(picture)
     assert image.shape[0] > 400 and image.shape[1] > 400
     assert image[..., :3].std() > 0.05  # a map and paths, not a blank canvas
+
+
+def test_a_camera_run_s_layout_shows_the_images() -> None:
+    from robot_localization_suite.launch.foxglove_layout import demo_layout, layout_topics
+    from robot_localization_suite.ros.recording import run_topics
+
+    layout = demo_layout(["ima_topo_localizer"], camera=True)
+    assert "/camera/image_raw" in layout_topics(layout)
+    recorded = {topic.name for topic in run_topics(["ima_topo_localizer"], camera=True)}
+    named = {name for name in layout_topics(layout) if not name.startswith("/evaluation/")}
+    assert named <= recorded, sorted(named - recorded)
+    assert "/camera/image_raw" not in layout_topics(demo_layout(["mcl_baseline"]))

@@ -67,27 +67,28 @@ def demo_layout(localizers: Sequence[str], *, camera: bool = False) -> dict[str,
         "Plot!heading_error": {**plot, "title": "heading error vs truth at the estimate's stamp [deg]",
                                "paths": heading_paths},
     }
+    plots: Any = {"direction": "column", "first": "Plot!position_error", "second": "Plot!heading_error",
+                  "splitPercentage": 50}
+    if camera:  # the camera's images above the plots
+        config_by_id["Image!camera"] = {"imageMode": {"imageTopic": "/camera/image_raw"}}
+        plots = {"direction": "column", "first": "Image!camera", "second": plots, "splitPercentage": 34}
     return {
         "configById": config_by_id,
         "globalVariables": {},
         "userNodes": {},
         "playbackConfig": {"speed": 1.0},
-        "layout": {
-            "direction": "row",
-            "first": "3D!demo",
-            "second": {"direction": "column", "first": "Plot!position_error", "second": "Plot!heading_error",
-                       "splitPercentage": 50},
-            "splitPercentage": 62,
-        },
+        "layout": {"direction": "row", "first": "3D!demo", "second": plots, "splitPercentage": 62},
     }
 
 
 def layout_topics(layout: dict[str, Any]) -> set[str]:
-    """Every topic a layout names: the 3-D panels' topics and the topics of the plots' message paths."""
+    """Every topic a layout names: the 3-D panels' topics, the plots' message paths' and the image panels'."""
     names: set[str] = set()
     for config in layout["configById"].values():
         names.update(config.get("topics", {}))
         names.update(path["value"].split(".", 1)[0] for path in config.get("paths", []))
+        if config.get("imageMode", {}).get("imageTopic"):
+            names.add(config["imageMode"]["imageTopic"])
     return names
 
 
