@@ -4,13 +4,17 @@ Starts ``scan_sim`` on a scenario (default ``config/scenarios/office_kidnap.yaml
 real time or ``--speed`` times faster) and each available localizer node
 (``registry.PLUGINS``) with its ``config/<name>.yaml`` and the
 scenario's map (``-p map_yaml:=...``), all through :mod:`.runner` with DDS on
-loopback. A monitor node in this process subscribes to ``/ground_truth``, each
-``/<localizer>/pose`` and ``/diagnostics``, and prints once a second each
-localizer's latest estimate and its error against the ground truth at the
-estimate's stamp. When the scenario ends (or after ``--duration`` seconds, or on
-Ctrl-C) it stops every node and prints a summary table: outputs, correct rate
+loopback. Each run gets a directory (``--out``, printed at the start): the nodes' output goes
+to its ``logs/`` (``--verbose``: inline too). A monitor node in this process subscribes to
+``/ground_truth``, each ``/<localizer>/pose`` and ``/diagnostics`` and shows, per localizer, its
+state, its error against the ground truth at the estimate's stamp and its update time
+(:func:`row_text`; redrawn in place on a terminal, :class:`MonitorDisplay`). A second node
+records the run into ``recording/`` (:mod:`..ros.recording`), and with ``--foxglove`` serves
+it live (:mod:`..ros.foxglove_live`). When the scenario ends (or after ``--duration``
+seconds, or on Ctrl-C) it stops every node and prints a summary table: outputs, correct rate
 (within 0.5 m and 25 degrees, ``core.metrics``), median position error, and
-median update time as the localizers report it on ``/diagnostics``.
+median update time as the localizers report it on ``/diagnostics``; it writes
+``trajectories.png`` (:func:`write_picture`) and ``foxglove_layout.json`` next to the recording.
 
 With no localizer installed it runs the simulator alone, which still shows the
 ground truth and kidnappings.
@@ -542,7 +546,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="seconds between monitor reports (default 1 on a terminal, where the report is "
                              "redrawn in place; 10 otherwise)")
     parser.add_argument("--out", default="results/demo",
-                        help="directory under which each run gets its own, with the nodes' logs (results/demo)")
+                        help="directory under which each run gets its own: the nodes' logs, the recording, "
+                             "its Foxglove layout and the picture (results/demo)")
     parser.add_argument("--verbose", action="store_true",
                         help="show the nodes' own output inline too (it always goes to the run's logs/)")
     parser.add_argument("--foxglove", action="store_true",
