@@ -45,7 +45,8 @@ from .dds import use_loopback
 from .foxglove_layout import demo_layout
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
-__all__ = ["DemoMonitor", "LocalizerTrack", "MonitorDisplay", "NodeLogs", "SummaryRow", "row_text", "build_specs", "default_domain_id", "resolve_scenario", "main"]
+__all__ = ["DemoMonitor", "LocalizerTrack", "MonitorDisplay", "NodeLogs", "SummaryRow", "row_text", "write_picture",
+           "build_specs", "default_domain_id", "resolve_scenario", "main"]
 
 DEFAULT_SCENARIO = "office_kidnap"
 
@@ -201,6 +202,18 @@ class DemoMonitor:
         events = self.new_events()
         return events + self.status_lines()
 
+    def paths(self) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]] | None:
+        """The true path ``(N, 3)``, the indices in it where kidnappings landed, each localizer's estimates ``(M, 3)``.
+
+        None before any ground truth.
+        """
+        with self._lock:
+            if not self.truth_poses:
+                return None
+            kidnaps = np.array([bisect.bisect_left(self.truth_stamps, t) for t in self.kidnappings], dtype=np.int64)
+            estimates = {name: np.array(track.path).reshape(-1, 3) for name, track in self.tracks.items()}
+            return np.array(self.truth_poses), kidnaps, estimates
+
     def summary_rows(self) -> list[SummaryRow]:
         self.match_pending(final=True)
         rows: list[SummaryRow] = []
@@ -248,17 +261,15 @@ def write_picture(monitor: DemoMonitor, grid_map: Any, path: Path, title: str) -
 
     from ..tools.map_plots import draw_truth, finish_map_axes, save_figure, show_map
 
-    with monitor._lock:
-        if not monitor.truth_poses:
-            return None
-        truth = np.array(monitor.truth_poses)
-        kidnaps = np.array([bisect.bisect_left(monitor.truth_stamps, t) for t in monitor.kidnappings], dtype=np.int64)
-        paths = {name: np.array(track.path).reshape(-1, 3) for name, track in monitor.tracks.items()}
+    paths = monitor.paths()
+    if paths is None:
+        return None
+    truth, kidnaps, estimates = paths
     fig, axes = plt.subplots(figsize=(8, 8))
     show_map(axes, grid_map)
     draw_truth(axes, truth, kidnaps)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"][1:]  # blue is the truth's
-    for index, (name, poses) in enumerate(paths.items()):
+    for index, (name, poses) in enumerate(estimates.items()):
         axes.plot(poses[:, 0], poses[:, 1], ".", ms=3, color=colours[index % len(colours)],
                   label=f"{name} ({len(poses)} estimates)")
     finish_map_axes(axes, title)
@@ -666,12 +677,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         spinner.join(timeout=5.0)
         monitor_node.node.destroy_node()
         recorder_node.destroy_node()
+        # The last report scores what is left, and its errors still reach the recording.
+        display.update(monitor.new_events(), monitor.status_lines())
+        display.finish()
         recording_size = recording.close()
         if server is not None:
             server.close()
         rclpy.try_shutdown()
-        display.update(monitor.new_events(), monitor.status_lines())
-        display.finish()
 
     if result.first_exit == ("scan_sim", 0):
         say("scenario finished")  # scan_sim exits with 0 at the scenario's end (exit_at_end)
