@@ -42,7 +42,7 @@ import numpy as np
 from ..core import metrics
 from ..registry import PLUGINS, config_dir
 from .dds import use_loopback
-from .foxglove_layout import demo_layout
+from .foxglove_layout import LAYOUT_FILE, demo_layout
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
 __all__ = ["DemoMonitor", "LocalizerTrack", "MonitorDisplay", "NodeLogs", "SummaryRow", "row_text", "write_picture",
@@ -702,8 +702,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if picture is not None:
         say(f"picture: {picture}")
     layout_path = run_dir / "foxglove_layout.json"
-    layout_path.write_text(json.dumps(demo_layout(localizers, camera=scenario.camera is not None), indent=2) + "\n")
-    say(f"recording: {recording.path} ({recording_size / 1e6:.1f} MB); open it in Foxglove with the layout {layout_path}")
+    try:
+        layout_path.write_text(json.dumps(demo_layout(localizers, camera=scenario.camera is not None), indent=2) + "\n")
+        layout_note = f"; open it in Foxglove with the layout {layout_path}"
+    except ImportError:
+        layout_note = f"; no layout for it without foxglove-sdk (the 'viz' extra): {config_dir() / LAYOUT_FILE} fits"
+    say(f"recording: {recording.path} ({recording_size / 1e6:.1f} MB)" + layout_note)
     failed = [name for name, code in result.exit_codes.items() if code not in (0, -signal.SIGINT)]
     if failed:
         say(f"nodes that failed: {', '.join(f'{n} ({result.exit_codes[n]})' for n in failed)}; "

@@ -1,6 +1,7 @@
 """The Foxglove layout of a demo run: a 3-D panel (map, scan, truth, each estimate) and plots of the errors.
 
-:func:`demo_layout` builds it for a set of localizers; ``config/foxglove_demo_layout.json`` is the one
+Built with foxglove-sdk's typed layout model (``foxglove.layouts``, its layout format version 1), so
+every panel and setting is one the SDK knows. :func:`demo_layout` builds it for a set of localizers; ``config/foxglove_demo_layout.json`` is the one
 for every localizer there is (``python -m robot_localization_suite.launch.foxglove_layout`` rewrites
 it), and each demo run writes its own, for the localizers it ran, next to its recording.
 """
@@ -23,68 +24,76 @@ _TRUTH_COLOUR = "#1f77b4"
 
 
 def demo_layout(localizers: Sequence[str], *, camera: bool = False) -> dict[str, Any]:
-    """The layout (Foxglove's JSON) showing the topics :func:`..ros.recording.run_topics` records for ``localizers``."""
+    """The layout of a run of ``localizers`` as Foxglove's JSON, built with ``foxglove.layouts`` (foxglove-sdk).
+
+    A 3-D panel in the map frame: the map, the scan, the truth and each estimate (its candidates
+    hidden, IAL's boxes shown); the camera's images when the run has a camera; plots of each
+    localizer's position and heading error against the truth at the estimate's stamp.
+
+    Raises:
+        ImportError: foxglove-sdk is not installed (the ``viz`` extra; ``make`` installs it).
+    """
+    import foxglove.layouts as fl
+
     from ..ros.recording import error_topic, run_topics
 
-    topics: dict[str, Any] = {
-        "/map": {"visible": True, "colorMode": "map", "alpha": 1.0},
-        "/scan": {"visible": True, "colorMode": "flat", "flatColor": "#ff0000", "pointSize": 3},
-        "/ground_truth": {"visible": True, "type": "arrow", "color": _TRUTH_COLOUR, "arrowScale": [0.6, 0.15, 0.15]},
-    }
     recorded = {topic.name for topic in run_topics(localizers, camera=camera)}
-    error_paths, heading_paths = [], []
+    topics: dict[str, Any] = {
+        "/map": fl.BaseRendererRosOccupancyGridTopicSettings(visible=True, color_mode="map", alpha=1.0),
+        "/scan": fl.BaseRendererLaserScanTopicSettings(visible=True, point_size=3.0, color_mode="flat",
+                                                      flat_color="#ff0000"),
+        "/ground_truth": fl.BaseRendererPoseTopicSettings(visible=True, type="arrow", color=_TRUTH_COLOUR,
+                                                         arrow_scale=(0.6, 0.15, 0.15)),
+    }
+    position, heading = [], []
     for index, name in enumerate(localizers):
         colour = _COLOURS[index % len(_COLOURS)]
-        topics[f"/{name}/pose"] = {"visible": True, "type": "arrow", "color": colour,
-                                   "arrowScale": [0.5, 0.12, 0.12], "showCovariance": True, "covarianceColor": colour + "40"}
-        topics[f"/{name}/candidates"] = {"visible": False, "type": "arrow", "color": colour + "80",
-                                         "arrowScale": [0.2, 0.05, 0.05]}
+        topics[f"/{name}/pose"] = fl.BaseRendererPoseTopicSettings(
+            visible=True, type="arrow", color=colour, arrow_scale=(0.5, 0.12, 0.12), show_covariance=True,
+            covariance_color=colour + "40")
+        topics[f"/{name}/candidates"] = fl.BaseRendererPosesTopicSettings(visible=False, type="arrow",
+                                                                         arrow_scale=(0.2, 0.05, 0.05))
         if f"/{name}/boxes" in recorded:
-            topics[f"/{name}/boxes"] = {"visible": True}
+            topics[f"/{name}/boxes"] = fl.BaseRendererBaseSettings(visible=True)
         path = error_topic(name)
-        error_paths.append({"value": f"{path}.point.x", "enabled": True, "color": colour, "label": f"{name} [m]",
-                            "timestampMethod": "headerStamp"})
-        heading_paths.append({"value": f"{path}.point.y", "enabled": True, "color": colour, "label": f"{name} [deg]",
-                              "timestampMethod": "headerStamp"})
-    plot = {"showLegend": True, "legendDisplay": "floating", "showXAxisLabels": True, "showYAxisLabels": True,
-            "isSynced": True, "xAxisVal": "timestamp", "sidebarDimension": 240}
-    config_by_id: dict[str, Any] = {
-        "3D!demo": {
-            "followTf": "map",
-            "followMode": "follow-none",
-            "cameraState": {"perspective": False, "distance": 30.0, "phi": 0.0, "thetaOffset": 0.0,
-                            "targetOffset": [10.0, 10.0, 0.0], "target": [0.0, 0.0, 0.0],
-                            "targetOrientation": [0.0, 0.0, 0.0, 1.0], "fovy": 45.0, "near": 0.5, "far": 5000.0},
-            "scene": {"transforms": {"showLabel": False, "axisScale": 0.5}},
-            "transforms": {},
-            "topics": topics,
-            "layers": {"grid": {"visible": False, "layerId": "foxglove.Grid"}},
-            "publish": {"type": "point", "poseTopic": "/initialpose"},
-            "imageMode": {},
-        },
-        "Plot!position_error": {**plot, "title": "position error vs truth at the estimate's stamp [m]",
-                                "paths": error_paths},
-        "Plot!heading_error": {**plot, "title": "heading error vs truth at the estimate's stamp [deg]",
-                               "paths": heading_paths},
-    }
-    plots: Any = {"direction": "column", "first": "Plot!position_error", "second": "Plot!heading_error",
-                  "splitPercentage": 50}
-    if camera:  # the camera's images above the plots
-        config_by_id["Image!camera"] = {"imageMode": {"imageTopic": "/camera/image_raw"}}
-        plots = {"direction": "column", "first": "Image!camera", "second": plots, "splitPercentage": 34}
-    return {
-        "configById": config_by_id,
-        "globalVariables": {},
-        "userNodes": {},
-        "playbackConfig": {"speed": 1.0},
-        "layout": {"direction": "row", "first": "3D!demo", "second": plots, "splitPercentage": 62},
-    }
+        position.append(fl.PlotSeries(value=f"{path}.point.x", enabled=True, color=colour, label=f"{name} [m]",
+                                      timestamp_method="headerStamp"))
+        heading.append(fl.PlotSeries(value=f"{path}.point.y", enabled=True, color=colour, label=f"{name} [deg]",
+                                     timestamp_method="headerStamp"))
+    three_d = fl.ThreeDeePanel(title="map, scan, truth (blue) and estimates", config=fl.ThreeDeeConfig(
+        follow_tf="map", follow_mode="follow-none", topics=topics,
+        camera_state=fl.ThreeDeeCameraState(perspective=False, distance=30.0, phi=0.0, theta_offset=0.0,
+                                            target_offset=(10.0, 10.0, 0.0))))
+
+    def plot(title: str, series: list[Any]) -> Any:
+        return fl.PlotPanel(title=title, config=fl.PlotConfig(
+            paths=series, show_legend=True, legend_display="floating", show_x_axis_labels=True,
+            show_y_axis_labels=True, is_synced=True, x_axis_val="timestamp"))
+
+    side = [fl.SplitItem(content=plot("position error vs truth at the estimate's stamp [m]", position)),
+            fl.SplitItem(content=plot("heading error vs truth at the estimate's stamp [deg]", heading))]
+    if camera:
+        side.insert(0, fl.SplitItem(content=fl.ImagePanel(
+            title="camera", config=fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic="/camera/image_raw")))))
+    layout = fl.Layout(content=fl.SplitContainer(direction="row", items=[
+        fl.SplitItem(proportion=1.6, content=three_d),
+        fl.SplitItem(proportion=1.0, content=fl.SplitContainer(direction="column", items=side)),
+    ]))
+    result: dict[str, Any] = json.loads(layout.to_json())
+    return result
+
+
+def _panels(content: dict[str, Any]) -> list[dict[str, Any]]:
+    if content.get("type") == "panel":
+        return [content]
+    return [panel for item in content.get("items", []) for panel in _panels(item["content"])]
 
 
 def layout_topics(layout: dict[str, Any]) -> set[str]:
     """Every topic a layout names: the 3-D panels' topics, the plots' message paths' and the image panels'."""
     names: set[str] = set()
-    for config in layout["configById"].values():
+    for panel in _panels(layout["content"]):
+        config = panel.get("config", {})
         names.update(config.get("topics", {}))
         names.update(path["value"].split(".", 1)[0] for path in config.get("paths", []))
         if config.get("imageMode", {}).get("imageTopic"):
