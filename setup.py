@@ -71,6 +71,8 @@ setup(
             "colcon-ros==0.5.0",
             "colcon-cmake==0.2.30",
         ],
+        # rls_demo --foxglove: the run served live over the Foxglove WebSocket protocol (ros/foxglove_live.py).
+        "viz": ["foxglove-sdk==0.30.3"],
         # Only for tools/ial_benchmark.py --codac: the measured comparison behind core/ial.py's choice of numba.
         "compare": ["codac==2.1.2"],
         "test": [
@@ -85,6 +87,8 @@ setup(
             # The README's `colcon build --packages-select ...` and `source install/setup.bash`.
             "colcon-package-selection==0.2.10",
             "colcon-bash==0.5.0",
+            # The WebSocket client of test_foxglove_live.py.
+            "websockets==17.4",
         ],
     },
     zip_safe=False,

@@ -42,6 +42,7 @@ ROSDEP_KEYS = {
     "rosbags": None,
     "mcap": None,
     "zstandard": None,
+    "foxglove-sdk": None,
 }
 
 

@@ -243,11 +243,11 @@ def test_monitor_scores_estimates_against_interpolated_truth() -> None:
     assert any(line.startswith("t =    4.4 s") for line in monitor.progress_lines())
 
 
-def test_demo_runs_the_simulator_and_prints_the_summary() -> None:
+def test_demo_runs_the_simulator_and_prints_the_summary(tmp_path: Path) -> None:
     env = dict(os.environ)
     result = subprocess.run(
         [sys.executable, "-m", "robot_localization_suite.launch.demo", "--localizers", "none",
-         "--speed", "4", "--duration", "8", "--period", "0.5"],
+         "--speed", "4", "--duration", "8", "--period", "0.5", "--out", str(tmp_path)],
         capture_output=True, text=True, timeout=120, env=env,
     )  # fmt: skip
     text = result.stdout + result.stderr
@@ -261,7 +261,12 @@ def test_demo_runs_the_simulator_and_prints_the_summary() -> None:
     assert "(no localizer ran: simulator only)" in text
     poses = int(re.search(r"ground truth: (\d+) poses", text).group(1))
     assert poses >= 20
-    assert re.search(r"scan_sim stopped \((exit code 0|killed by SIGINT)\)", text), text
+    # The nodes' and the runner's lines go to the run's logs/, not the terminal.
+    (run_dir,) = tmp_path.iterdir()
+    assert f"run directory {run_dir}" in text and "[scan_sim]" not in text
+    runner_log = (run_dir / "logs" / "rls_run.log").read_text()
+    assert re.search(r"scan_sim stopped \((exit code 0|killed by SIGINT)\)", runner_log), runner_log
+    assert (run_dir / "logs" / "scan_sim.log").is_file()
 
 
 def localizer_node(**parameters) -> dict:  # noqa: ANN003

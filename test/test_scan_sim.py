@@ -237,9 +237,14 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(
     )
     (mount,) = messages[1].msg.transforms  # the scenario's laser mount, once
     assert (mount.header.frame_id, mount.child_frame_id) == ("base_link", "laser")
+    # The clock starts at record_epoch (2025-01-01), not 1970.
+    epoch_ns = ScanSimSettings().record_epoch * 1_000_000_000
+    assert epoch_ns == 1_735_689_600 * 1_000_000_000
+    assert messages[0].stamp_ns == messages[1].stamp_ns == epoch_ns
+    assert (grid.header.stamp.sec, grid.header.stamp.nanosec) == (1_735_689_600, 0)
     stream = iter(messages[2:])
     for step in expected_steps:
-        stamp_ns = int(round(step.time * 1e9))
+        stamp_ns = epoch_ns + int(round(step.time * 1e9))
         odom, odom_tf, truth, scan = next(stream), next(stream), next(stream), next(stream)
         (transform,) = odom_tf.msg.transforms
         assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
@@ -383,19 +388,21 @@ def test_record_writes_the_new_map_and_the_reinitialization_request_at_their_ste
     bag = tmp_path / "bag"
     assert scan_sim.main(["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={scenario_path}"]) == 0
     messages = list(read_bag(bag))
+    epoch = ScanSimSettings().record_epoch  # whole seconds: the clock's t = 0
+    epoch_ns = epoch * 1_000_000_000
     maps = [m for m in messages if m.topic == "/map"]
-    assert [m.stamp_ns for m in maps] == [0, 2_000_000_000]
+    assert [m.stamp_ns for m in maps] == [epoch_ns, epoch_ns + 2_000_000_000]
     moved = load_map_yaml(tmp_path / "room_moved.yaml").data
     assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(80, 120), moved)
-    assert maps[1].msg.header.stamp.sec == 2 and maps[1].msg.header.frame_id == "map"
+    assert maps[1].msg.header.stamp.sec == epoch + 2 and maps[1].msg.header.frame_id == "map"
     (request,) = [m for m in messages if m.topic == "/operator/reinitialize_global_localization"]
-    assert request.stamp_ns == 4_000_000_000
-    assert (request.msg.stamp.sec, request.msg.stamp.nanosec, request.msg.frame_id) == (4, 0, "map")
+    assert request.stamp_ns == epoch_ns + 4_000_000_000
+    assert (request.msg.stamp.sec, request.msg.stamp.nanosec, request.msg.frame_id) == (epoch + 4, 0, "map")
     # Each event comes before the scan of its step, the first scan that sees the changed world.
     topics = [m.topic for m in messages]
-    step_20 = [m.topic for m in messages if m.stamp_ns == 2_000_000_000]
+    step_20 = [m.topic for m in messages if m.stamp_ns == epoch_ns + 2_000_000_000]
     assert step_20.index("/map") < step_20.index("/scan")
-    step_40 = [m.topic for m in messages if m.stamp_ns == 4_000_000_000]
+    step_40 = [m.topic for m in messages if m.stamp_ns == epoch_ns + 4_000_000_000]
     assert step_40.index("/operator/reinitialize_global_localization") < step_40.index("/scan")
     assert topics.count("/scan") == 51
 

@@ -4,13 +4,17 @@ Starts ``scan_sim`` on a scenario (default ``config/scenarios/office_kidnap.yaml
 real time or ``--speed`` times faster) and each available localizer node
 (``registry.PLUGINS``) with its ``config/<name>.yaml`` and the
 scenario's map (``-p map_yaml:=...``), all through :mod:`.runner` with DDS on
-loopback. A monitor node in this process subscribes to ``/ground_truth``, each
-``/<localizer>/pose`` and ``/diagnostics``, and prints once a second each
-localizer's latest estimate and its error against the ground truth at the
-estimate's stamp. When the scenario ends (or after ``--duration`` seconds, or on
-Ctrl-C) it stops every node and prints a summary table: outputs, correct rate
+loopback. Each run gets a directory (``--out``, printed at the start): the nodes' output goes
+to its ``logs/`` (``--verbose``: inline too). A monitor node in this process subscribes to
+``/ground_truth``, each ``/<localizer>/pose`` and ``/diagnostics`` and shows, per localizer, its
+state, its error against the ground truth at the estimate's stamp and its update time
+(:func:`row_text`; redrawn in place on a terminal, :class:`MonitorDisplay`). A second node
+records the run into ``recording/`` (:mod:`..ros.recording`), and with ``--foxglove`` serves
+it live (:mod:`..ros.foxglove_live`). When the scenario ends (or after ``--duration``
+seconds, or on Ctrl-C) it stops every node and prints a summary table: outputs, correct rate
 (within 0.5 m and 25 degrees, ``core.metrics``), median position error, and
-median update time as the localizers report it on ``/diagnostics``.
+median update time as the localizers report it on ``/diagnostics``; it writes
+``trajectories.png`` (:func:`write_picture`) and ``foxglove_layout.json`` next to the recording.
 
 With no localizer installed it runs the simulator alone, which still shows the
 ground truth and kidnappings.
@@ -20,11 +24,14 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import json
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,9 +42,11 @@ import numpy as np
 from ..core import metrics
 from ..registry import PLUGINS, config_dir
 from .dds import use_loopback
+from .foxglove_layout import LAYOUT_FILE, demo_layout
 from .runner import NodeSpec, RunError, install_stop_handlers, run_nodes
 
-__all__ = ["DemoMonitor", "LocalizerTrack", "SummaryRow", "build_specs", "default_domain_id", "resolve_scenario", "main"]
+__all__ = ["DemoMonitor", "LocalizerTrack", "MonitorDisplay", "NodeLogs", "SummaryRow", "row_text", "write_picture",
+           "build_specs", "default_domain_id", "resolve_scenario", "main"]
 
 DEFAULT_SCENARIO = "office_kidnap"
 
@@ -65,8 +74,11 @@ class LocalizerTrack:
     outputs: int = 0
     last_pose: np.ndarray | None = None
     last_error: tuple[float, float] | None = None
+    last_error_stamp: float | None = None  # the stamp of the estimate last_error belongs to
     status: str = "-"
+    progress: str = ""  # what an INITIALIZING node prepares, and how far it is
     update_ms: list[float] = field(default_factory=list)
+    path: list[np.ndarray] = field(default_factory=list)  # every finite estimate, for the picture
 
 
 class DemoMonitor:
@@ -77,8 +89,11 @@ class DemoMonitor:
     waits until ground truth at or after its stamp has arrived.
     """
 
-    def __init__(self, localizers: Sequence[str]) -> None:
+    def __init__(self, localizers: Sequence[str],
+                 on_scored: Callable[[str, np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> None:
+        """``on_scored(name, stamps [s], position errors [m], heading errors [rad])`` sees each batch scored."""
         self.tracks = {name: LocalizerTrack(name) for name in localizers}
+        self.on_scored = on_scored
         self.truth_stamps: list[float] = []
         self.truth_poses: list[np.ndarray] = []
         self.kidnappings: list[float] = []
@@ -110,15 +125,20 @@ class DemoMonitor:
         with self._lock:
             track = self.tracks.setdefault(name, LocalizerTrack(name))
             track.outputs += 1
-            track.last_pose = np.asarray(pose, dtype=np.float64)
-            track.pending.append((stamp, track.last_pose))
+            pose = np.asarray(pose, dtype=np.float64)
+            if not np.all(np.isfinite(pose)):  # counted, never shown nor scored
+                return
+            track.last_pose = pose
+            track.path.append(pose)
+            track.pending.append((stamp, pose))
 
-    def on_diagnostics(self, name: str, status: str, update_ms: float | None) -> None:
+    def on_diagnostics(self, name: str, status: str, update_ms: float | None, progress: str = "") -> None:
         with self._lock:
             track = self.tracks.get(name)
             if track is None:
                 return
             track.status = status
+            track.progress = progress
             if update_ms is not None and math.isfinite(update_ms):
                 track.update_ms.append(update_ms)
 
@@ -145,9 +165,24 @@ class DemoMonitor:
                 track.errors_theta.extend(dtheta[known].tolist())
                 if known.any():
                     track.last_error = (float(dxy[known][-1]), float(dtheta[known][-1]))
+                    track.last_error_stamp = float(stamps[known][-1])
+                    if self.on_scored is not None:
+                        self.on_scored(track.name, stamps[known], dxy[known], dtheta[known])
 
-    def progress_lines(self) -> list[str]:
-        """Compact lines for the periodic report: truth, then each localizer's estimate and error."""
+    def new_events(self) -> list[str]:
+        """Announcements not yet made (kidnappings), each once: they stay above the redrawn block."""
+        with self._lock:
+            if not self.truth_stamps:
+                return []
+            start = self._origin()
+            lines = []
+            while self._announced_kidnaps < len(self.kidnappings):
+                lines.append(f"*** kidnapping at t = {self.kidnappings[self._announced_kidnaps] - start:.1f} s ***")
+                self._announced_kidnaps += 1
+            return lines
+
+    def status_lines(self) -> list[str]:
+        """The block the monitor redraws: the truth, a header, one row per localizer (:func:`row_text`)."""
         self.match_pending()
         with self._lock:
             if not self.truth_stamps:
@@ -155,21 +190,29 @@ class DemoMonitor:
             # Stamps are the simulator's clock; times are shown from its start.
             start = self._origin()
             stamp, truth = self.truth_stamps[-1], self.truth_poses[-1]
-            lines = []
-            while self._announced_kidnaps < len(self.kidnappings):
-                lines.append(f"*** kidnapping at t = {self.kidnappings[self._announced_kidnaps] - start:.1f} s ***")
-                self._announced_kidnaps += 1
-            lines.append(f"t = {stamp - start:6.1f} s  {'truth':<20} {_pose_text(truth)}")
             width = max([20, *(len(name) for name in self.tracks)])
-            for track in self.tracks.values():
-                if track.last_pose is None:
-                    lines.append(f"{'':12}{track.name:<{width}} (no estimate yet)  {track.status}")
-                    continue
-                error = "err    ?" if track.last_error is None else (
-                    f"err {track.last_error[0]:5.2f} m {math.degrees(track.last_error[1]):5.1f} deg"
-                )
-                lines.append(f"{'':12}{track.name:<{width}} {_pose_text(track.last_pose)}  {error}  {track.status}")
+            lines = [f"t = {stamp - start:6.1f} s  {'truth':<{width}} {_pose_text(truth)}"]
+            if self.tracks:
+                lines.append(header_text(width))
+            lines += [row_text(track, start, width) for track in self.tracks.values()]
             return lines
+
+    def progress_lines(self) -> list[str]:
+        """New announcements, then the status block (what a plain, non-redrawing report prints)."""
+        events = self.new_events()
+        return events + self.status_lines()
+
+    def paths(self) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]] | None:
+        """The true path ``(N, 3)``, the indices in it where kidnappings landed, each localizer's estimates ``(M, 3)``.
+
+        None before any ground truth.
+        """
+        with self._lock:
+            if not self.truth_poses:
+                return None
+            kidnaps = np.array([bisect.bisect_left(self.truth_stamps, t) for t in self.kidnappings], dtype=np.int64)
+            estimates = {name: np.array(track.path).reshape(-1, 3) for name, track in self.tracks.items()}
+            return np.array(self.truth_poses), kidnaps, estimates
 
     def summary_rows(self) -> list[SummaryRow]:
         self.match_pending(final=True)
@@ -209,14 +252,122 @@ class DemoMonitor:
         return "\n".join(lines)
 
 
+def write_picture(monitor: DemoMonitor, grid_map: Any, path: Path, title: str) -> Path | None:
+    """The run as one PNG: the map, the true path, kidnappings (stars), each localizer's estimates (dots).
+
+    Drawn as the benchmark's trajectory plots are (:mod:`..tools.map_plots`); None when no truth came.
+    """
+    import matplotlib.pyplot as plt
+
+    from ..tools.map_plots import draw_truth, finish_map_axes, save_figure, show_map
+
+    paths = monitor.paths()
+    if paths is None:
+        return None
+    truth, kidnaps, estimates = paths
+    fig, axes = plt.subplots(figsize=(8, 8))
+    show_map(axes, grid_map)
+    draw_truth(axes, truth, kidnaps)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"][1:]  # blue is the truth's
+    for index, (name, poses) in enumerate(estimates.items()):
+        axes.plot(poses[:, 0], poses[:, 1], ".", ms=3, color=colours[index % len(colours)],
+                  label=f"{name} ({len(poses)} estimates)")
+    finish_map_axes(axes, title)
+    return save_figure(fig, path)
+
+
 def _pose_text(pose: np.ndarray) -> str:
     return f"x {pose[0]:7.2f}  y {pose[1]:7.2f}  yaw {math.degrees(pose[2]):7.1f} deg"
+
+
+_ERROR_HEADER = "error vs truth at the estimate's stamp"
+
+
+def header_text(width: int) -> str:
+    """The column names above the localizer rows (the error column says against which truth)."""
+    return f"{'':12}{'localizer':<{width}} {'state':<18} {_ERROR_HEADER:<38} {'update':>10}"
+
+
+def _finite(*values: float | None) -> bool:
+    return all(value is not None and math.isfinite(value) for value in values)
+
+
+def row_text(track: LocalizerTrack, origin: float, width: int = 20) -> str:
+    """One localizer's row: state, its last scored error with that estimate's time, its last update time.
+
+    A LOST localizer has no numbers (its last pose is an older estimate's); a value that is not
+    finite is shown as ``-``: a row never prints ``nan``.
+    """
+    state = track.status if track.status != "-" else "waiting"
+    if track.progress and state == "INITIALIZING":
+        state = f"{state} {track.progress}"
+    error = "-"
+    if state == "LOST":
+        error = "- (no pose while lost)"
+    elif track.last_error is not None and _finite(*track.last_error):
+        error = f"{track.last_error[0]:6.2f} m {math.degrees(track.last_error[1]):6.1f} deg"
+        since = None if track.last_error_stamp is None else track.last_error_stamp - origin
+        if _finite(since):
+            error += f"  (t = {since:6.1f} s)"
+    elif track.last_pose is not None:
+        error = "(waiting for truth)"
+    update = f"{track.update_ms[-1]:7.1f} ms" if track.update_ms and _finite(track.update_ms[-1]) else "-"
+    return f"{'':12}{track.name:<{width}} {state[:18]:<18} {error:<38} {update:>10}"
+
+
+class MonitorDisplay:
+    """Writes the monitor: on a terminal the status block is redrawn in place, elsewhere printed as lines.
+
+    Messages (``say``) and announcements are printed above the block and stay; the block is
+    the only part that is replaced (ANSI cursor-up and clear-to-end).
+    """
+
+    def __init__(self, stream: Any = None, redraw: bool | None = None, prefix: str = "[demo] ") -> None:
+        self.stream = stream if stream is not None else sys.stdout
+        self.redraw = bool(redraw if redraw is not None else getattr(self.stream, "isatty", lambda: False)())
+        self.prefix = prefix
+        self._block: list[str] = []
+        self._lock = threading.Lock()
+
+    def _erase(self) -> None:
+        if self.redraw and self._block:
+            self.stream.write(f"\x1b[{len(self._block)}F\x1b[J")
+
+    def _draw(self) -> None:
+        # On a terminal each line is cut to its width: a wrapped line would throw the cursor-up count off.
+        width = shutil.get_terminal_size().columns - 1 if self.redraw else None
+        for line in self._block:
+            self.stream.write(f"{self.prefix}{line}"[:width] + "\n")
+
+    def message(self, text: str) -> None:
+        """A line that stays (printed above the block on a terminal)."""
+        with self._lock:
+            self._erase()
+            self.stream.write(f"{self.prefix}{text}\n")
+            if self.redraw:
+                self._draw()
+            self.stream.flush()
+
+    def update(self, events: Sequence[str], block: Sequence[str]) -> None:
+        """Print ``events`` (they stay), then show ``block`` in place of the previous one."""
+        with self._lock:
+            self._erase()
+            for line in events:
+                self.stream.write(f"{self.prefix}{line}\n")
+            self._block = list(block)
+            self._draw()
+            self.stream.flush()
+
+    def finish(self) -> None:
+        """Leave the last block on screen; later messages print below it."""
+        with self._lock:
+            self._block = []
 
 
 class MonitorNode:
     """The rclpy side of the monitor: subscriptions feeding :class:`DemoMonitor`, a 1 Hz report."""
 
-    def __init__(self, monitor: DemoMonitor, print_line, period_s: float = 1.0) -> None:
+    def __init__(self, monitor: DemoMonitor, display: MonitorDisplay, period_s: float = 1.0) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import OccupancyGrid, Odometry
@@ -248,7 +399,7 @@ class MonitorNode:
             self.node.create_subscription(PoseWithCovarianceStamped, f"/{name}/pose", on_pose(name), RELIABLE_QOS)
         diagnostics_qos = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, diagnostics_qos)
-        self.node.create_timer(period_s, lambda: [print_line(line) for line in monitor.progress_lines()])
+        self.node.create_timer(period_s, lambda: display.update(monitor.new_events(), monitor.status_lines()))
 
     def _on_diagnostics(self, msg) -> None:
         for status in msg.status:
@@ -257,7 +408,16 @@ class MonitorNode:
                 update_ms = float(values["update_ms"]) if "update_ms" in values else None
             except ValueError:
                 update_ms = None
-            self.monitor.on_diagnostics(status.hardware_id, status.message, update_ms)
+            progress = values.get("progress_percent", "")
+            progress = f"{float(progress):.0f} %" if _is_number(progress) else ""
+            self.monitor.on_diagnostics(status.hardware_id, status.message, update_ms, progress)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
 
 
 def default_domain_id() -> int:
@@ -302,12 +462,85 @@ def build_specs(scenario_path: Path, map_yaml: Path, localizers: Sequence[str], 
     return specs
 
 
+def _start_recording(run_dir: Path, monitor: DemoMonitor, localizers: Sequence[str], camera: bool,
+                     sinks: list[Any]) -> tuple[Any, Any]:
+    """A node tapping the run's topics into ``<run>/recording`` (MCAP) and into ``sinks`` (the live server).
+
+    The monitor's scored errors go the same way, on :func:`..ros.recording.error_topic`.
+    """
+    from rclpy.node import Node
+
+    from ..ros.recording import ERROR_TYPE, RunRecording, RunTap, error_message, error_topic, run_topics
+
+    recording = RunRecording(run_dir / "recording")
+    node = Node("rls_demo_recorder")
+    tap = RunTap(node, run_topics(localizers, camera=camera), [recording, *sinks])
+
+    def scored(name: str, stamps: np.ndarray, dxy: np.ndarray, dtheta: np.ndarray) -> None:
+        for stamp, error_xy, error_theta in zip(stamps, dxy, dtheta, strict=True):
+            tap.emit(error_topic(name), ERROR_TYPE, error_message(stamp, error_xy, error_theta), int(stamp * 1e9))
+
+    monitor.on_scored = scored
+    return node, recording
+
+
+def _start_live_server(localizers: Sequence[str], camera: bool, port: int) -> Any:
+    """The Foxglove WebSocket server of the recorded topics and the scored errors (:mod:`..ros.foxglove_live`)."""
+    from ..ros.foxglove_live import LiveServer
+    from ..ros.recording import ERROR_TYPE, error_topic, run_topics
+
+    topics = [(topic.name, topic.type_name) for topic in run_topics(localizers, camera=camera)]
+    return LiveServer(topics + [(error_topic(name), ERROR_TYPE) for name in localizers], port=port)
+
+
+def run_directory(out: str | os.PathLike[str], scenario_name: str) -> Path:
+    """A new directory of this run under ``out``: ``<UTC time>_<scenario>`` (``_2``, ``_3`` ... if taken)."""
+    base = Path(out) / f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}_{scenario_name}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}_{n}")
+    path.mkdir(parents=True)
+    return path
+
+
+class NodeLogs:
+    """Each node's output into ``<run>/logs/<node>.log`` (the runner's own into ``rls_run.log``)."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        directory.mkdir(parents=True, exist_ok=True)
+        self._files: dict[str, Any] = {}
+        self._lock = threading.Lock()
+
+    def path(self, name: str) -> Path:
+        return self.directory / f"{name}.log"
+
+    def write(self, name: str, line: str) -> None:
+        with self._lock:
+            handle = self._files.get(name)
+            if handle is None:
+                handle = self._files[name] = open(self.path(name), "a", buffering=1, encoding="utf-8")  # noqa: SIM115
+            handle.write(line + "\n")
+
+    def close(self) -> None:
+        with self._lock:
+            for handle in self._files.values():
+                handle.close()
+            self._files.clear()
+
+
+# Runner lines shown even without --verbose: the localizers came up, or a node did not.
+_RUNNER_HEADLINES = ("active:", "did not come up", "still running")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="rls_demo",
         description=(
-            "Run scan_sim on a scenario with every available localizer (DDS on loopback), print each one's "
-            "estimate and error once a second, and a summary table when the scenario ends."
+            "Run scan_sim on a scenario with every available localizer (DDS on loopback), show each one's "
+            "state, error and update time, and a summary table when the scenario ends. The nodes' output "
+            "goes to the run's directory (printed at the start)."
         ),
     )
     parser.add_argument(
@@ -320,10 +553,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--duration", type=float, help="stop after this many wall-clock seconds (default: scenario end)")
     parser.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or one of this run's own)")
-    parser.add_argument("--period", type=float, default=1.0, help="seconds between progress reports (1)")
-    parser.add_argument("--quiet-nodes", action="store_true", help="hide the nodes' own output")
+    parser.add_argument("--period", type=float,
+                        help="seconds between monitor reports (default 1 on a terminal, where the report is "
+                             "redrawn in place; 10 otherwise)")
+    parser.add_argument("--out", default="results/demo",
+                        help="directory under which each run gets its own: the nodes' logs, the recording, "
+                             "its Foxglove layout and the picture (results/demo)")
+    parser.add_argument("--verbose", action="store_true",
+                        help="show the nodes' own output inline too (it always goes to the run's logs/)")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="serve the recorded topics live over the Foxglove WebSocket protocol on loopback "
+                             "(needs foxglove-sdk: the 'viz' extra, which make installs)")
+    parser.add_argument("--foxglove-port", type=int, default=8765,
+                        help="port of the --foxglove server on 127.0.0.1 (8765; 0: a free one)")
     args = parser.parse_args(argv)
-
     if not args.speed > 0.0:
         parser.error(f"--speed must be > 0, got {args.speed!r}")
     available = list(PLUGINS)
@@ -358,16 +601,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     # The monitor in this process talks DDS on loopback too, on the nodes' domain.
     use_loopback(domain_id)
 
-    out_lock = threading.Lock()
-
-    def say(text: str) -> None:
-        with out_lock:
-            print(f"[demo] {text}", flush=True)
+    display = MonitorDisplay()
+    say = display.message
+    run_dir = run_directory(args.out, scenario_path.stem)
+    logs = NodeLogs(run_dir / "logs")
+    period = args.period if args.period is not None else (1.0 if display.redraw else 10.0)
 
     def node_output(name: str, line: str) -> None:
-        if not args.quiet_nodes:
-            with out_lock:
-                print(f"[{name}] {line}", flush=True)
+        logs.write(name, line)
+        if args.verbose:
+            display.message(f"[{name}] {line}")
+
+    def runner_log(text: str) -> None:
+        logs.write("rls_run", text)
+        if args.verbose or any(key in text for key in _RUNNER_HEADLINES):
+            say(text)
 
     duration = args.duration
     if duration is None and math.isfinite(end_time):
@@ -376,19 +624,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"scenario {scenario_path.name} ({end_time:.0f} s at {args.speed:g}x), map {map_yaml.name}, "
         f"ROS_DOMAIN_ID {domain_id}, localizers: {', '.join(localizers) or 'none (simulator only)'}"
     )
+    say(f"run directory {run_dir} (node logs in {run_dir / 'logs'}"
+        + (")" if args.verbose else "; --verbose shows them here)"))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
     monitor = DemoMonitor(localizers)
+    sinks: list[Any] = []
+    server = None
+    if args.foxglove:
+        try:
+            server = _start_live_server(localizers, scenario.camera is not None, args.foxglove_port)
+        except (ImportError, RuntimeError) as exc:
+            print(f"rls_demo: --foxglove: {exc}", file=sys.stderr)
+            return 2
+        sinks.append(server)
+        url = server.app_url()
+        say(f"Foxglove: open connection {server.address}" + (f" (or {url})" if url else ""))
     stop = threading.Event()
     install_stop_handlers(stop)
     # Our handlers stop the nodes in order; rclpy must not take SIGINT over.
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    monitor_node = MonitorNode(monitor, say, args.period)
+    monitor_node = MonitorNode(monitor, display, period)
     executor = SingleThreadedExecutor()
     executor.add_node(monitor_node.node)
+    recorder_node, recording = _start_recording(run_dir, monitor, localizers, scenario.camera is not None,
+                                                 sinks)
+    executor.add_node(recorder_node)
+    say(f"recording into {recording.path}")
     spinner = threading.Thread(target=executor.spin, daemon=True, name="monitor")
     spinner.start()
 
@@ -399,17 +664,25 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration=duration,
             stop=stop,
             output=node_output,
-            log=say,
+            log=runner_log,
         )
     except RunError as exc:
         print(f"rls_demo: {exc}", file=sys.stderr)
         return 2
     finally:
+        logs.close()
         # Stop spinning and wait for the thread before tearing rclpy down: a spinning thread left
         # behind at exit aborts the interpreter ("terminate called without an active exception").
         executor.shutdown(timeout_sec=2.0)
         spinner.join(timeout=5.0)
         monitor_node.node.destroy_node()
+        recorder_node.destroy_node()
+        # The last report scores what is left, and its errors still reach the recording.
+        display.update(monitor.new_events(), monitor.status_lines())
+        display.finish()
+        recording_size = recording.close()
+        if server is not None:
+            server.close()
         rclpy.try_shutdown()
 
     if result.first_exit == ("scan_sim", 0):
@@ -422,9 +695,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         say("stopped")
     for line in monitor.summary_table().splitlines():
         say(line)
+    from ..core.grid_map import load_map_yaml
+
+    picture = write_picture(monitor, load_map_yaml(map_yaml), run_dir / "trajectories.png",
+                            f"{scenario_path.stem}: the demo's estimates")
+    if picture is not None:
+        say(f"picture: {picture}")
+    layout_path = run_dir / "foxglove_layout.json"
+    try:
+        layout_path.write_text(json.dumps(demo_layout(localizers, camera=scenario.camera is not None), indent=2) + "\n")
+        layout_note = f"; open it in Foxglove with the layout {layout_path}"
+    except ImportError:
+        layout_note = f"; no layout for it without foxglove-sdk (the 'viz' extra): {config_dir() / LAYOUT_FILE} fits"
+    say(f"recording: {recording.path} ({recording_size / 1e6:.1f} MB)" + layout_note)
     failed = [name for name, code in result.exit_codes.items() if code not in (0, -signal.SIGINT)]
     if failed:
-        say(f"nodes that failed: {', '.join(f'{n} ({result.exit_codes[n]})' for n in failed)}")
+        say(f"nodes that failed: {', '.join(f'{n} ({result.exit_codes[n]})' for n in failed)}; "
+            f"their output: {logs.directory}")
     return 0 if not failed and not result.escalated else 1
 
 

@@ -28,7 +28,8 @@ from ..core.errors import BagError
 if TYPE_CHECKING:
     from .bag_recovery import RecoveredBag, Recovery
 
-__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name"]
+__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name",
+           "message_class", "message_definition", "bag_bytes"]
 
 LOG = logging.getLogger(__name__)
 _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -42,7 +43,19 @@ def message_type_name(msg_or_class: Any) -> str:
     return f"{package}/msg/{cls.__name__}"
 
 
-def _message_class(type_name: str) -> type:
+def bag_bytes(path: str | os.PathLike[str]) -> int:
+    """The size of a bag directory (its MCAP files and metadata.yaml) [bytes]."""
+    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
+
+
+def message_definition(type_name: str) -> str:
+    """The ``ros2msg`` text of ``pkg/msg/Name`` with its dependencies, as rosbag2 puts it in an MCAP schema."""
+    text, _ = _TYPESTORE.generate_msgdef(type_name, ros_version=2)
+    return text
+
+
+def message_class(type_name: str) -> type:
+    """The rclpy class of ``pkg/msg/Name``; BagError when it is not installed."""
     try:
         package, kind, name = type_name.split("/")
         return getattr(importlib.import_module(f"{package}.{kind}"), name)
@@ -90,11 +103,13 @@ class BagWriter:
         self._writer.close()
 
     def write(self, topic: str, msg: Any, stamp_ns: int) -> None:
+        self.write_serialized(topic, message_type_name(msg), serialize_message(msg), stamp_ns)
+
+    def write_serialized(self, topic: str, type_name: str, data: bytes, stamp_ns: int) -> None:
+        """A message already in CDR (as a raw rclpy subscription receives it) of type ``pkg/msg/Name``."""
         if topic not in self._connections:
-            self._connections[topic] = self._writer.add_connection(
-                topic, message_type_name(msg), typestore=_TYPESTORE
-            )
-        self._writer.write(self._connections[topic], int(stamp_ns), serialize_message(msg))
+            self._connections[topic] = self._writer.add_connection(topic, type_name, typestore=_TYPESTORE)
+        self._writer.write(self._connections[topic], int(stamp_ns), data)
         self.count += 1
 
 
@@ -186,7 +201,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
 def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
     try:
         connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
-        classes = {c.id: _message_class(c.msgtype) for c in connections}
+        classes = {c.id: message_class(c.msgtype) for c in connections}
         try:
             for connection, stamp_ns, raw in reader.messages(connections=connections):
                 yield BagMessage(connection.topic, int(stamp_ns), deserialize_message(raw, classes[connection.id]))
@@ -201,7 +216,7 @@ def _recovered_messages(recovered: RecoveredBag, path: Path, wanted: set[str] | 
     classes: dict[str, type] = {}
     try:
         for topic, type_name, stamp_ns, raw in recovered.messages(wanted):
-            cls = classes.get(type_name) or classes.setdefault(type_name, _message_class(type_name))
+            cls = classes.get(type_name) or classes.setdefault(type_name, message_class(type_name))
             yield BagMessage(topic, stamp_ns, deserialize_message(raw, cls))
     except OSError as exc:
         raise BagError(f"bag {str(path)!r} cannot be read: {exc}") from exc

@@ -4,7 +4,7 @@
 reinitialization request on ``operator/reinitialize_global_localization`` first, then odometry, as
 ``odom`` and as ``odom -> base`` on ``/tf``, before the scan it belongs to) and the static ones (``base -> laser``
 on ``/tf_static``, the scenario's laser mount); :func:`record` runs a whole scenario as fast as
-possible into an MCAP bag. Without tf2_msgs (:data:`.tf.TFMessage` None) there is no ``/tf``.
+possible into an MCAP bag, its clock starting at ``record_epoch`` (2025, not 1970). Without tf2_msgs (:data:`.tf.TFMessage` None) there is no ``/tf``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from ..core.sim.config import REINITIALIZE_TOPIC
 from ..core.sim.settings import ScanSimSettings, build_scenario
 from ..core.sim.simulator import SimulationStep, Simulator
 from . import conversions
-from .bag import BagWriter
+from .bag import BagWriter, bag_bytes
 from .tf import TFMessage, tf_message, transform_to_msg
 
 __all__ = ["StepMessages", "make_simulator", "record"]
@@ -115,18 +115,20 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
     if (reason := stop_requested()) is not None:
         log(f"scan_sim: stopped by {reason} before recording began; nothing written")
         return {}
-    builder = StepMessages(simulator, settings, epoch=0.0)
+    # A realistic clock (settings.record_epoch, whole seconds), not 1970: log times are exact nanoseconds.
+    epoch_ns = int(settings.record_epoch) * 1_000_000_000
+    builder = StepMessages(simulator, settings, epoch=float(settings.record_epoch))
     counts: dict[str, int] = {}
     started = time.perf_counter()
     simulated = 0.0
     with BagWriter(bag_dir, compress=True) as writer:
-        writer.write("/map", builder.map_message(), 0)
+        writer.write("/map", builder.map_message(), epoch_ns)
         counts["/map"] = 1
         for topic, msg in builder.static_messages():
-            writer.write("/" + topic, msg, 0)
+            writer.write("/" + topic, msg, epoch_ns)
             counts["/" + topic] = 1
         for step in simulator.run():
-            stamp_ns = int(round(builder.stamp(step.time) * 1e9))
+            stamp_ns = epoch_ns + int(round(step.time * 1e9))
             for topic, msg in builder.step_messages(step):
                 writer.write("/" + topic, msg, stamp_ns)
                 counts["/" + topic] = counts.get("/" + topic, 0) + 1
@@ -134,7 +136,7 @@ def record(bag_dir: str | Path, simulator: Simulator, settings: ScanSimSettings,
             if (reason := stop_requested()) is not None:
                 break
     elapsed = time.perf_counter() - started
-    size = sum(p.stat().st_size for p in Path(bag_dir).rglob("*") if p.is_file())
+    size = bag_bytes(bag_dir)
     written = ", ".join(f"{topic} {count}" for topic, count in counts.items()) + f"; {size / 1e6:.2f} MB"
     if reason is not None:
         log(f"scan_sim: stopped early by {reason} at {simulated:.1f} s of {scenario.end_time:.1f} s simulated; "

@@ -379,10 +379,6 @@ class ConversionReport:
         return "\n".join(lines)
 
 
-def _directory_bytes(path: Path) -> int:
-    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
-
-
 def _clear(path: Path, overwrite: bool) -> None:
     """Refuse an existing output unless ``overwrite``; then remove it."""
     if path.exists():
@@ -411,6 +407,8 @@ def convert_log(
     map_yaml = grid_map.save(map_out) if map_out is not None else None
     poses, stamps = prepared.poses, prepared.stamps
     steps = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+    from ..ros.bag import bag_bytes  # rclpy only once a bag is written
+
     return ConversionReport(
         scans=len(prepared.scans),
         skipped_lines=prepared.log.skipped,
@@ -419,7 +417,7 @@ def convert_log(
         duration_s=float(stamps[-1] - stamps[0]),
         path_length_m=float(steps.sum()),
         map_cells=(grid_map.width, grid_map.height),
-        bag_bytes=_directory_bytes(out_dir),
+        bag_bytes=bag_bytes(out_dir),
         map_yaml=map_yaml,
         stamp_source=prepared.stamp_source,
         stamp_warnings=prepared.stamp_warnings,

@@ -81,6 +81,9 @@ class ScanSimSettings(Settings):
     base_frame: str = setting("base_link", "child frame of odom and ground_truth")
     laser_frame: str = setting("laser", "frame of scan")
     camera_frame: str = setting("camera", "frame of camera/image_raw")
+    record_epoch: int = setting(1_735_689_600, "--record: the simulated clock's t = 0 in seconds since 1970 "
+                                "(live mode uses the node's clock); default 2025-01-01 00:00 UTC",
+                                unit="s", low=0, high=4_000_000_000)
 
     def overrides(self, names: dict[str, str]) -> dict[str, Any]:
         """The scenario fields these settings override (the non-negative, non-empty ones)."""

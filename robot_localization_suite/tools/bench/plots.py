@@ -1,6 +1,7 @@
 """PNG plots of one benchmark run: trajectory over the map, errors over time, update times.
 
-matplotlib with the Agg backend (no display needed). Files, per bag and localizer:
+matplotlib with the Agg backend (no display needed); the map and the true path are drawn by
+:mod:`..map_plots`, which the demo's picture shares. Files, per bag and localizer:
 ``<localizer>_trajectory.png``, ``<localizer>_error.png``, ``<localizer>_update_time.png``.
 """
 
@@ -17,28 +18,13 @@ import numpy as np  # noqa: E402
 
 from ...core import metrics  # noqa: E402
 from ...core.grid_map import GridMap  # noqa: E402
+from ..map_plots import draw_truth, finish_map_axes, map_image, save_figure, show_map  # noqa: E402
 
 if TYPE_CHECKING:
     from .reference import BagReference
     from .replay import RunRecord
 
 __all__ = ["map_image", "plot_run"]
-
-
-def map_image(grid_map: GridMap) -> np.ndarray:
-    """Grey image of a map for ``imshow(origin="lower")``: occupied black, free white, unknown grey."""
-    image = np.full(grid_map.data.shape, 0.8)
-    image[grid_map.free_mask] = 1.0
-    image[grid_map.occupied_mask] = 0.0
-    return image
-
-
-def _show_map(axes: Any, grid_map: GridMap | None) -> None:
-    if grid_map is None:
-        return
-    x0, x1, y0, y1 = grid_map.extent
-    axes.imshow(map_image(grid_map), cmap="gray", vmin=0.0, vmax=1.0, origin="lower", extent=(x0, x1, y0, y1),
-                interpolation="nearest")
 
 
 def plot_run(
@@ -57,25 +43,16 @@ def plot_run(
     written = []
 
     fig, axes = plt.subplots(figsize=(8, 8))
-    _show_map(axes, grid_map)
+    show_map(axes, grid_map)
     if truth is not None:
-        axes.plot(truth.poses[:, 0], truth.poses[:, 1], "-", color="tab:blue", lw=0.8, label="ground truth")
-        kidnapped = truth.poses[reference.kidnap_indices] if reference.kidnap_indices.size else np.zeros((0, 3))
-        if len(kidnapped):
-            axes.plot(kidnapped[:, 0], kidnapped[:, 1], "*", color="tab:purple", ms=12, label="kidnapped to")
+        draw_truth(axes, truth.poses, reference.kidnap_indices)
     if record.poses.size:
         correct = np.asarray(series.get("correct", np.zeros(len(record.poses), dtype=bool)), dtype=bool)
         axes.plot(record.poses[correct, 0], record.poses[correct, 1], ".", color="tab:green", ms=3, label="correct")
         axes.plot(record.poses[~correct, 0], record.poses[~correct, 1], ".", color="tab:red", ms=3,
                   label="not correct")
-    axes.set_aspect("equal")
-    axes.set_xlabel("x [m]")
-    axes.set_ylabel("y [m]")
-    axes.set_title(title)
-    axes.legend(loc="best", fontsize=8)
-    written.append(out_dir / f"{localizer}_trajectory.png")
-    fig.savefig(written[-1], dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    finish_map_axes(axes, title)
+    written.append(save_figure(fig, out_dir / f"{localizer}_trajectory.png"))
 
     fig, (ax_xy, ax_theta) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
     if truth is not None and record.stamps.size:
@@ -100,9 +77,7 @@ def plot_run(
     ax_theta.set_ylabel("heading error [deg]")
     ax_theta.set_xlabel("time since first input [s] (dashed: kidnappings)")
     ax_xy.set_title(title)
-    written.append(out_dir / f"{localizer}_error.png")
-    fig.savefig(written[-1], dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    written.append(save_figure(fig, out_dir / f"{localizer}_error.png"))
 
     fig, axes = plt.subplots(figsize=(6, 4))
     if record.update_ms.size:
@@ -117,7 +92,5 @@ def plot_run(
     axes.set_xlabel("update time [ms]")
     axes.set_ylabel("updates")
     axes.set_title(title)
-    written.append(out_dir / f"{localizer}_update_time.png")
-    fig.savefig(written[-1], dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    written.append(save_figure(fig, out_dir / f"{localizer}_update_time.png"))
     return written

@@ -14,6 +14,7 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -25,7 +26,7 @@ from ...core.interval import angle_hull
 from ...core.localizer import Estimate, LocalizerStatus
 from .isolation import rss_mb
 from .prepare import prepare_localizer, prepare_scan
-from .reference import IMAGE_TOPIC, MAP_TOPIC, ODOM_TOPIC, REINITIALIZE_TOPIC, SCAN_TOPIC, BagReference
+from .reference import IMAGE_TOPIC, MAP_TOPIC, ODOM_TOPIC, REINITIALIZE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference
 from .specs import LocalizerSpec
 
 if TYPE_CHECKING:
@@ -136,6 +137,53 @@ def _method_checks(record: RunRecord, estimate: Estimate, base_truth: NDArray[np
             record.corrected_heading_error_deg.append(float(np.rad2deg(dtheta[0])))
 
 
+class _RunBag:
+    """One replay as an MCAP: the bag's messages, the localizer's outputs as its node publishes them
+    (pose, candidates, diagnostics, IAL's boxes as markers), each output's error against the truth at
+    its stamp, and the true ``map -> odom`` on ``/tf`` (:mod:`...ros.recording`, as the demo records)."""
+
+    def __init__(self, path: Path, localizer: str, truth: metrics.Trajectory | None, breaks: NDArray[np.int64]) -> None:
+        from ...ros.bag import BagWriter
+        from ...ros.recording import TrueMapToOdom
+
+        self.localizer = localizer
+        self.truth = truth
+        self.breaks = breaks
+        self.map_to_odom = TrueMapToOdom()
+        self.writer = BagWriter(path, compress=True).__enter__()
+
+    def write_input(self, item: BagMessage) -> None:
+        from ...ros.tf import TFMessage, tf_message
+
+        self.writer.write(item.topic, item.msg, item.stamp_ns)
+        if item.topic in (ODOM_TOPIC, TRUTH_TOPIC) and TFMessage is not None:
+            transform = self.map_to_odom.add(item.msg, truth=item.topic == TRUTH_TOPIC)
+            if transform is not None:
+                self.writer.write("/tf", tf_message([transform]), item.stamp_ns)
+
+    def write_output(self, output: Any, stamp_ns: int) -> None:
+        from ...ros.extras import boxes_markers
+        from ...ros.recording import ERROR_TYPE, error_message, error_topic
+
+        name = self.localizer
+        if output.has_pose:
+            self.writer.write(f"/{name}/pose", output.pose, stamp_ns)
+        self.writer.write(f"/{name}/candidates", output.candidates, stamp_ns)
+        self.writer.write("/diagnostics", output.diagnostics, stamp_ns)
+        estimate = output.estimate
+        if estimate.boxes is not None:
+            self.writer.write(f"/{name}/boxes", boxes_markers(estimate), stamp_ns)
+        if output.has_pose and self.truth is not None:
+            truth = metrics.interpolate_poses(self.truth, [estimate.stamp], breaks=self.breaks)
+            dxy, dtheta = metrics.pose_errors(np.asarray(estimate.pose).reshape(1, 3), truth)
+            if np.isfinite(dxy[0]):
+                self.writer.write_serialized(error_topic(name), ERROR_TYPE,
+                                             error_message(estimate.stamp, dxy[0], dtheta[0]), stamp_ns)
+
+    def close(self) -> None:
+        self.writer.__exit__(None, None, None)
+
+
 def replay_localizer(
     reference: BagReference,
     spec: LocalizerSpec,
@@ -145,8 +193,13 @@ def replay_localizer(
     max_seconds: float | None = None,
     sample_rss: bool = True,
     progress: bool = False,
+    record_dir: Path | None = None,
 ) -> RunRecord:
-    """Replay one bag through one localizer, in this process (``docs/benchmark.md``, "How a run works")."""
+    """Replay one bag through one localizer, in this process (``docs/benchmark.md``, "How a run works").
+
+    ``record_dir``: also write the run as one MCAP, ``<record_dir>/<bag>_<localizer>_<mode>/``
+    (:class:`_RunBag`), which Foxglove opens with ``config/foxglove_demo_layout.json``.
+    """
     from ...ros import conversions
     from ...ros.adapter import LocalizerAdapter
     from ...ros.bag import replay
@@ -198,6 +251,8 @@ def replay_localizer(
         if output is None:
             return
         estimate = output.estimate
+        if run_bag is not None:
+            run_bag.write_output(output, int(log_time[0] * 1e9))
         pose = np.asarray(estimate.pose, dtype=np.float64).reshape(3)
         stamps.append(float(estimate.stamp))
         poses.append(pose)
@@ -228,6 +283,8 @@ def replay_localizer(
 
     def on_message(item: BagMessage) -> None:
         log_time[0] = item.stamp_ns * 1e-9
+        if run_bag is not None:
+            run_bag.write_input(item)
         if sample_rss and item.topic == sensor_topic:
             record.peak_rss_mb = max(record.peak_rss_mb or 0.0, rss_mb())
             if bar is not None:
@@ -250,6 +307,8 @@ def replay_localizer(
 
     handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor, MAP_TOPIC: on_map,
                                                  REINITIALIZE_TOPIC: on_reinitialize}
+    run_bag = None if record_dir is None else _RunBag(Path(record_dir) / f"{reference.name}_{spec.name}_{mode}",
+                                                         spec.name, truth, reference.kidnap_indices)
     try:
         replay(reference.path, handlers, on_message=on_message)
     except _StopReplay:
@@ -257,6 +316,8 @@ def replay_localizer(
     finally:
         if bar is not None:
             bar.close()
+        if run_bag is not None:
+            run_bag.close()
     if sample_rss:
         record.peak_rss_mb = round(max(record.peak_rss_mb or 0.0, rss_mb()), 1)
     record.stamps = np.array(stamps, dtype=np.float64)
