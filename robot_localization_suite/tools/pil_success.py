@@ -61,7 +61,7 @@ class SuccessRow:
 def simulated_scans(grid_map: GridMap, poses: NDArray[np.float64], *, beams: int, max_range: float, noise: float,
                     rng: np.random.Generator) -> list[Scan]:
     """One 360-degree scan per pose ``(N, 3)``; no return beyond ``max_range``."""
-    angles = np.linspace(-math.pi, math.pi, beams, endpoint=False)
+    angles = np.linspace(-math.pi, math.pi, beams, endpoint=False, dtype=np.float64)
     caster = RayCaster(grid_map, max_range=max_range)
     scans = []
     for k, pose in enumerate(poses):
@@ -117,22 +117,19 @@ def plot(grid_map: GridMap, positions: NDArray[np.float64], rows: Sequence[Succe
     import matplotlib.pyplot as plt
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
-    from .bench.plots import map_image
+    from .map_plots import save_figure, show_map
 
-    extent = (grid_map.origin[0], grid_map.origin[0] + grid_map.width * grid_map.resolution,
-              grid_map.origin[1], grid_map.origin[1] + grid_map.height * grid_map.resolution)
     colours, norm = ListedColormap(["tab:blue", "gold", "tab:red"]), BoundaryNorm([0.0, 0.5, 0.8, 1.01], 3)
     figure, axes = plt.subplots(1, len(rows), figsize=(4.5 * len(rows), 4.5), squeeze=False)
     for ax, row in zip(axes[0], rows, strict=True):
-        ax.imshow(map_image(grid_map), cmap="gray", origin="lower", extent=extent)
+        show_map(ax, grid_map)
         ax.scatter(positions[:, 0], positions[:, 1], c=row.position_success, cmap=colours, norm=norm, s=9)
         ax.set_title(f"{row.profile}, {row.search}: {row.success_rate:.2f}", fontsize=10)
         ax.set_xticks([])
         ax.set_yticks([])
     figure.suptitle("PIL success (error <= 0.2 m): red >= 80 %, yellow 50-80 %, blue < 50 %", fontsize=10)
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    save_figure(figure, path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
