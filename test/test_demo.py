@@ -14,7 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from robot_localization_suite.launch.demo import DemoMonitor, LocalizerTrack, MonitorDisplay, NodeLogs, row_text
+from robot_localization_suite.launch.demo import NodeLogs
+from robot_localization_suite.launch.demo_monitor import DemoMonitor, LocalizerTrack, MonitorDisplay, row_text
 
 _ANY_FLOAT = st.floats(allow_nan=True, allow_infinity=True)
 

@@ -16,7 +16,7 @@ import psutil
 import pytest
 import yaml
 
-from robot_localization_suite.launch.demo import DemoMonitor
+from robot_localization_suite.launch.demo_monitor import DemoMonitor
 from robot_localization_suite.launch.runner import (
     NodeSpec,
     RunError,
