@@ -641,8 +641,10 @@ def _run(localizer: Localizer, world: GridMap, truth: np.ndarray, rng: np.random
     return estimates
 
 
-def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLocalizer) -> None:
-    tracker = IRLocalizer(settings(seed=1), None)
+@pytest.mark.parametrize("motion_model", ["odometry", "velocity"])
+def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLocalizer, motion_model: str) -> None:
+    """With ours (nav2's odometry model) and with the paper's velocity model (IV-D)."""
+    tracker = IRLocalizer(settings(seed=1, motion_model=motion_model), None)
     _share_index(tracker, localizer)
     assert isinstance(tracker, Localizer) and isinstance(tracker, GlobalFixer)
     # from room 1 through its door into the corridor, east, a U-turn, back west
@@ -659,7 +661,10 @@ def test_tracking_converges_after_initialisation(world: GridMap, localizer: IRLo
     assert np.degrees(turns.max()) < 10.0
     assert estimates[-1].status is LocalizerStatus.LOCALIZED
     assert estimates[-1].candidates.shape == (tracker.settings.particle_count, 3)
-    assert all("initialized_because" not in e.details for e in estimates[1:])
+    reinitialised = [k for k, e in enumerate(estimates) if k and "initialized_because" in e.details]
+    # The velocity model reads a step with a turn on the spot (the U-turn) as one arc: it loses the robot
+    # there once and finds it again from the scan (the tail above is right); the odometry model never.
+    assert len(reinitialised) <= (1 if motion_model == "velocity" else 0), reinitialised
 
 
 @pytest.mark.parametrize(("global_check_updates", "expected"), [(0, {"lost"}), (2, {"lost", "better global fix"})])

@@ -7,7 +7,9 @@ import pytest
 
 from robot_localization_suite.core.motion import (
     OdometryMotionModel,
+    VelocityMotionModel,
     apply_delta,
+    arc_of_step,
     odometry_delta,
 )
 from robot_localization_suite.core.se2 import angle_difference, compose, relative, wrap_angle
@@ -150,3 +152,39 @@ def test_bounds_contain_the_step_with_the_stated_margins() -> None:
 def test_bad_alpha_is_refused_with_its_value(name: str, value: float) -> None:
     with pytest.raises(ValueError, match=rf"{name}.*{value!r}"):
         OdometryMotionModel(**{name: value})
+
+
+def _arc_end(start: np.ndarray, length: float, turn: float) -> np.ndarray:
+    """Where driving ``length`` along an arc turning by ``turn`` from ``start`` ends (the kinematics)."""
+    if abs(turn) < 1e-12:
+        return start + np.array([length * np.cos(start[2]), length * np.sin(start[2]), 0.0])
+    radius = length / turn
+    return np.array([start[0] + radius * (np.sin(start[2] + turn) - np.sin(start[2])),
+                     start[1] - radius * (np.cos(start[2] + turn) - np.cos(start[2])),
+                     wrap_angle(start[2] + turn)])
+
+
+@pytest.mark.parametrize(("length", "turn"), [(1.0, 0.0), (1.0, 0.6), (-0.8, 0.4), (0.5, -2.5), (0.0, 0.7)])
+def test_velocity_model_reads_an_arc_back_and_moves_every_pose_along_it_exactly_without_noise(
+        length: float, turn: float) -> None:
+    odom_start = np.array([2.0, -1.0, 0.3])
+    odom_end = _arc_end(odom_start, length, turn)
+    assert np.allclose(arc_of_step(odom_start, odom_end), (length, turn), atol=1e-9)
+    poses = np.array([[0.0, 0.0, 0.0], [5.0, 3.0, -2.0]])
+    moved = VelocityMotionModel(0.0, 0.0, 0.0, 0.0).sample(poses, odom_start, odom_end, np.random.default_rng(0))
+    for pose, out in zip(poses, moved, strict=True):
+        np.testing.assert_allclose(out, compose(pose, relative(odom_start, odom_end)), atol=1e-9)
+
+
+def test_velocity_model_noise_is_on_the_arc_length_and_turn_with_the_stated_variances() -> None:
+    """Straight 2 m: along-track spread sqrt(alpha3) * 2 m, heading spread sqrt(alpha2) * 2 m, no final
+    rotation of its own (the heading is the turn: one sample per pose of each)."""
+    model = VelocityMotionModel(alpha1=0.0, alpha2=0.01, alpha3=0.04, alpha4=0.0)
+    out = model.sample(np.zeros((SAMPLES, 3)), np.zeros(3), np.array([2.0, 0.0, 0.0]), np.random.default_rng(1))
+    heading = out[:, 2]
+    assert np.std(heading) == pytest.approx(np.sqrt(0.01) * 2.0, rel=0.02)
+    # the end point lies on the arc its own heading change describes
+    lengths = np.array([arc_of_step(np.zeros(3), pose)[0] for pose in out[:2000]])
+    assert np.std(lengths) == pytest.approx(np.sqrt(0.04) * 2.0, rel=0.1)
+    np.testing.assert_allclose(out[:2000, 1], [_arc_end(np.zeros(3), s, t)[1] for s, t in
+                                               zip(lengths, heading[:2000], strict=True)], atol=1e-9)

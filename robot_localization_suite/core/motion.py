@@ -13,6 +13,10 @@ The omnidirectional variant (nav2 ``OmniMotionModel``) adds ``alpha5`` for straf
 
 ``bounds`` gives the guaranteed-set version used by interval methods: every
 component of the decomposition lies in ``value +- (relative * |value| + absolute)``.
+
+:class:`VelocityMotionModel` is table 5.3 (``sample_motion_model_velocity``), for
+methods whose paper uses it (IR, Aycard & Brouard): the step between two odometry poses
+read as one arc at constant (v, w), its length and turn perturbed.
 """
 
 from __future__ import annotations
@@ -24,7 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .se2 import angle_difference, wrap_angle
 
-__all__ = ["OdometryDelta", "OdometryMotionModel", "MotionBounds", "odometry_delta", "apply_delta"]
+__all__ = ["OdometryDelta", "OdometryMotionModel", "VelocityMotionModel", "MotionBounds", "odometry_delta",
+           "apply_delta", "arc_of_step"]
 
 # Below this translation [m] the heading of travel is meaningless (nav2 uses 0.01 m).
 _MIN_TRANSLATION_FOR_HEADING = 0.01
@@ -175,3 +180,62 @@ class OdometryMotionModel:
             trans=around(delta.trans, relative_translation, absolute_translation),
             rot2=around(delta.rot2, relative_rotation, absolute_rotation),
         )
+
+
+def arc_of_step(previous: ArrayLike, current: ArrayLike) -> tuple[float, float]:
+    """The odometry step from ``previous`` to ``current`` (``(3,)``) as one arc at constant (v, w):
+    ``(length [m], turn [rad])`` (``v dt``, ``w dt``); negative length when driving backwards. The chord's
+    direction is taken as the arc's (a sideways slip is not a velocity)."""
+    previous = np.asarray(previous, dtype=np.float64)
+    current = np.asarray(current, dtype=np.float64)
+    turn = float(angle_difference(current[2], previous[2]))
+    dx, dy = current[0] - previous[0], current[1] - previous[1]
+    chord = float(np.hypot(dx, dy))
+    if chord > 0.0 and np.cos(np.arctan2(dy, dx) - previous[2] - 0.5 * turn) < 0.0:
+        chord = -chord
+    return chord / float(np.sinc(turn / (2.0 * np.pi))), turn  # arc = chord / (sin(turn/2) / (turn/2))
+
+
+@dataclass(frozen=True)
+class VelocityMotionModel:
+    """Probabilistic velocity motion model (Thrun et al., table 5.3), in arc length and turn rather than
+    ``v, w, dt`` (the same model for controls constant over the step; no time step needed).
+
+    Noise on the translational and rotational components only, as Aycard & Brouard IV-D describe it
+    (the table's final rotation, alpha5-6, is left out). Variances as nav2's alphas: length
+    ``alpha3 s^2 + alpha4 t^2``, turn ``alpha2 s^2 + alpha1 t^2`` (the table's alpha1-2 and alpha3-4).
+    """
+
+    alpha1: float = 0.2
+    alpha2: float = 0.2
+    alpha3: float = 0.2
+    alpha4: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("alpha1", "alpha2", "alpha3", "alpha4"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0.0:
+                raise ValueError(f"motion model {name} must be finite and >= 0, got {value!r}")
+
+    def sample(
+        self,
+        poses: ArrayLike,
+        previous_odom: ArrayLike,
+        current_odom: ArrayLike,
+        rng: np.random.Generator,
+    ) -> NDArray[np.float64]:
+        """Propagate poses ``(N, 3)`` along the odometry step's arc with sampled noise."""
+        poses = np.asarray(poses, dtype=np.float64)
+        count = poses.shape[0]
+        length, turn = arc_of_step(previous_odom, current_odom)
+        std_length = np.sqrt(self.alpha3 * length**2 + self.alpha4 * turn**2)
+        std_turn = np.sqrt(self.alpha2 * length**2 + self.alpha1 * turn**2)
+        length_hat = length + rng.normal(0.0, 1.0, count) * std_length
+        turn_hat = turn + rng.normal(0.0, 1.0, count) * std_turn
+        chord = length_hat * np.sinc(turn_hat / (2.0 * np.pi))
+        heading = poses[:, 2] + 0.5 * turn_hat
+        out = np.empty_like(poses)
+        out[:, 0] = poses[:, 0] + chord * np.cos(heading)
+        out[:, 1] = poses[:, 1] + chord * np.sin(heading)
+        out[:, 2] = wrap_angle(poses[:, 2] + turn_hat)
+        return out

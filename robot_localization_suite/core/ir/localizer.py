@@ -22,7 +22,7 @@ from ..filter.odometry_gate import OdometryGate
 from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
-from ..motion import OdometryMotionModel
+from ..motion import OdometryMotionModel, VelocityMotionModel
 from ..scan import Scan
 from ..se2 import compose, relative, wrap_angle
 from .global_fix import COVARIANCE_FLOOR, IRGlobalFixer
@@ -47,12 +47,10 @@ class IRLocalizer:
         self.grid_map: GridMap | None = None
         self.fixer = IRGlobalFixer(self.settings)
         self._rng = np.random.default_rng(self.settings.seed)
-        self._motion = OdometryMotionModel(
-            alpha1=self.settings.alpha1,
-            alpha2=self.settings.alpha2,
-            alpha3=self.settings.alpha3,
-            alpha4=self.settings.alpha4,
-        )
+        s = self.settings
+        model = VelocityMotionModel if s.motion_model == "velocity" else OdometryMotionModel
+        self._motion: OdometryMotionModel | VelocityMotionModel = model(
+            alpha1=s.alpha1, alpha2=s.alpha2, alpha3=s.alpha3, alpha4=s.alpha4)
         # Latest odometry; the reference is the odometry at the last update (the particles' frame).
         self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self._reset_tracking()

@@ -105,6 +105,9 @@ class IRSettings(Settings):
     update_min_d: float = setting(1.0, "translation before a filter update (paper 1 m)", unit="m", low=0.0, high=1e3)
     update_min_a: float = setting(math.radians(20.0), "rotation before a filter update (paper 20 deg)", unit="rad",
                                   low=0.0, high=7.0)
+    motion_model: str = setting("odometry", "the tracker's motion model: nav2's odometry model (ours) or the "
+                                "velocity model of the paper (IV-D; Thrun et al. table 5.3, the odometry step read as "
+                                "one arc), both with alpha1..4", choices=("odometry", "velocity"))
     alpha1: float = setting(0.02, "rotation noise from rotation (nav2 name and meaning)", low=0.0, high=100.0)
     alpha2: float = setting(0.02, "rotation noise from translation", low=0.0, high=100.0)
     alpha3: float = setting(0.02, "translation noise from translation", low=0.0, high=100.0)
