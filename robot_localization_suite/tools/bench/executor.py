@@ -7,7 +7,7 @@ arguments. :class:`SequentialExecutor` runs the tasks one at a time through
 runs in a fresh spawned child of its worker (same isolation, same peak RSS, same timeout).
 Both yield ``(task index, status, result, seconds)`` and never raise for a failed run. Dask
 is imported only when a :class:`DaskExecutor` starts (the optional ``scale`` extra). How
-and why: ``docs/benchmark.md``, "Dask: many bags, many machines".
+and why: ``docs/benchmark.md``, "Dask, sweeps, trajectories out".
 """
 
 from __future__ import annotations

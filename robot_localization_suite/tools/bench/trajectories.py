@@ -7,7 +7,7 @@ the first fix on, outside kidnapping recoveries, interpolated as ``core/metrics.
 pose a line, z = 0, the heading as a rotation about z. ``evo_ape tum <localizer>.truth.tum
 <localizer>.tum`` (no ``--align``) then gives ``rmse_xy_m``; with evo installed (the ``evo``
 extra) the run's fields get ``evo_ape_rmse_m`` from evo's own reader and APE
-(``docs/benchmark.md``, "Trajectories out").
+(``docs/benchmark.md``, "Dask, sweeps, trajectories out").
 """
 
 from __future__ import annotations
