@@ -168,3 +168,18 @@ def test_tum_files_give_back_the_runs_rmse(tmp_path):
     assert len(whole) > len(truth_stamps)
     pytest.importorskip("evo")
     assert fields["evo_ape_rmse_m"] == pytest.approx(fields["rmse_xy_m"], abs=1e-4)
+
+
+def test_global_fixes_on_two_workers_match_the_child_processes(tmp_path):
+    specs = [bench.registry_spec("ir_initializer"), bench.registry_spec("mcl_baseline")]  # MCL has no global_fix
+    executor = bench.DaskExecutor(workers=2, progress=False)
+    try:
+        on_dask = bench.run_global_fixes(SMALL_BAGS[:1], specs, tmp_path / "dask", every=10, executor=executor)
+    finally:
+        executor.close()
+    plain = bench.run_global_fixes(SMALL_BAGS[:1], specs, tmp_path / "plain", every=10)
+    assert list(on_dask["room_outliers_bounded"]) == ["ir_initializer"]
+    keys = ("fixes", "global_correct_rate", "global_fine_rate", "recall_at_k")
+    assert ({k: on_dask["room_outliers_bounded"]["ir_initializer"][k] for k in keys}
+            == {k: plain["room_outliers_bounded"]["ir_initializer"][k] for k in keys})
+    assert on_dask["room_outliers_bounded"]["ir_initializer"]["fixes"] > 0

@@ -99,7 +99,7 @@ def _executor(args: argparse.Namespace) -> Executor:
         raise ValueError("--workers starts a local cluster; an existing one (--scheduler) has its own workers")
     if args.in_process or args.workers == 0:
         if dask_asked:
-            raise ValueError("--scheduler and --ship-bags need Dask: not with --in-process or --workers 0")
+            raise ValueError("--workers N, --scheduler and --ship-bags run on Dask: not with --in-process or --workers 0")
         return SequentialExecutor(isolate=not args.in_process, max_seconds=args.max_seconds,
                                   child_progress=args.verbose)
     if not dask_available():
@@ -222,7 +222,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if bags and args.global_fixes:
             summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
                                        isolate=not args.in_process, max_seconds=args.max_seconds,
-                                       honour_skips=args.all, child_progress=args.verbose)
+                                       honour_skips=args.all, child_progress=args.verbose, executor=executor)
         elif bags:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
@@ -241,7 +241,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 summary = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
                                            map_yaml=args.map, isolate=not args.in_process,
                                            max_seconds=args.max_seconds, honour_skips=args.all,
-                                           child_progress=args.verbose)
+                                           child_progress=args.verbose, executor=executor)
                 append_section(args.out, "global_fixes")
         cv_summary = None
         if cv_indexes:

@@ -17,6 +17,7 @@ import hashlib
 import io
 import logging
 import os
+import shutil
 import sys
 import tarfile
 import tempfile
@@ -105,7 +106,7 @@ def _unpack_bag(blob: bytes) -> Path:
             try:
                 partial.replace(root)
             except OSError:  # another task of this worker's host got there first
-                pass
+                shutil.rmtree(partial, ignore_errors=True)
     return root / top
 
 

@@ -19,14 +19,14 @@ from ...core.grid_map import GridMap
 from .coverage import CoverageCache, OutputScores, global_fix_scores, replay_scores, run_coverage_fields
 from .executor import Executor, SequentialExecutor, Task
 from .global_fixes import global_fix_localizer
-from .isolation import call_guarded
 from .reference import IMAGE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference, load_reference, map_candidates, resolve_map
 from .replay import replay_localizer
 from .specs import LocalizerSpec
 from .summary import summarize_global_fixes, summarize_run
 from .tables import one_line, write_summary
 
-__all__ = ["run_benchmark", "run_global_fixes", "replay_pair", "replay_task", "finish_replay", "global_fix_pair"]
+__all__ = ["run_benchmark", "run_global_fixes", "replay_pair", "replay_task", "finish_replay", "global_fix_pair",
+           "global_fix_task", "finish_global_fixes"]
 
 LOG = logging.getLogger("rls_bench")
 
@@ -156,15 +156,39 @@ def global_fix_pair(
     child_progress: bool,
     coverage: CoverageCache,
 ) -> tuple[dict[str, Any] | None, OutputScores | None]:
-    """Single-scan global fixes of one localizer on one bag: fields and per-fix scores.
+    """Single-scan global fixes of one localizer on one bag, here and now: :func:`finish_global_fixes`."""
+    print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
+          flush=True)
+    task = global_fix_task(reference, spec, grid_map, every=every, isolate=isolate, max_seconds=max_seconds)
+    _, status, result, _ = next(SequentialExecutor(isolate, max_seconds, child_progress).run([task]))
+    return finish_global_fixes(reference, spec, grid_map, map_source, status, result, every=every,
+                               coverage=coverage)
+
+
+def global_fix_task(reference: BagReference, spec: LocalizerSpec, grid_map: GridMap | None, *, every: int,
+                    isolate: bool, max_seconds: float | None) -> Task:
+    """The global fixes of one localizer on one bag, as a task for an executor."""
+    kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
+    return Task(f"{reference.name}/{spec.name}/global_fixes", global_fix_localizer, (reference, spec, grid_map),
+                kwargs, bag=reference.path)
+
+
+def finish_global_fixes(
+    reference: BagReference,
+    spec: LocalizerSpec,
+    grid_map: GridMap | None,
+    map_source: str,
+    status: str,
+    result: Any,
+    *,
+    every: int,
+    coverage: CoverageCache,
+    say: Callable[[str], None] | None = None,
+) -> tuple[dict[str, Any] | None, OutputScores | None]:
+    """Fields and per-fix scores of finished global fixes (``status``/``result`` of the task).
 
     Fields None: the localizer has no ``global_fix``. A failed run gives ``{"mode", "error"}``.
     """
-    print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
-          flush=True)
-    kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
-    status, result = call_guarded(global_fix_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
-                                  max_seconds=max_seconds, child_progress=child_progress)
     if status != "ok":
         return {"mode": "global_fixes", "error": str(result).splitlines()[0]}, None
     if not result.supported:
@@ -174,12 +198,14 @@ def global_fix_pair(
     fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
     if spec.params is not None:
         fields["params"] = spec.params
+    fields.update(_sweep_fields(spec))
     scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
     scores = global_fix_scores(result, scan_coverage)
     if scan_coverage is not None:
         fields.update(run_coverage_fields(scores))
-    print(f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
-          f"fix {fields['fix_ms_median']} ms", file=sys.stderr, flush=True)
+    (say or functools.partial(print, file=sys.stderr, flush=True))(
+        f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
+        f"fix {fields['fix_ms_median']} ms")
     return fields, scores
 
 
@@ -275,23 +301,39 @@ def run_global_fixes(
     max_seconds: float | None = None,
     honour_skips: bool = False,
     child_progress: bool = False,
+    executor: Executor | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary.
 
-    ``child_progress``: as in :func:`run_benchmark`.
+    ``executor``, ``child_progress``: as in :func:`run_benchmark`.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if executor is None:
+        executor = SequentialExecutor(isolate, max_seconds, child_progress)
     references = [load_reference(b) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
-    coverage = CoverageCache()
+    planned: list[tuple[BagReference, LocalizerSpec, GridMap | None, str]] = []
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode="global_fixes"):
         if skip is not None or spec.uses_camera:
             continue
-        grid_map, map_source = resolve_map(reference, map_yaml)
-        fields, _ = global_fix_pair(reference, spec, grid_map, map_source, every=every, isolate=isolate,
-                                    max_seconds=max_seconds, child_progress=child_progress, coverage=coverage)
-        if fields is not None:
+        planned.append((reference, spec, *resolve_map(reference, map_yaml)))
+        summary[reference.name][spec.name] = {}  # the planned order, whatever finishes first
+    tasks = [global_fix_task(reference, spec, grid_map, every=every, isolate=executor.isolate,
+                             max_seconds=max_seconds) for reference, spec, grid_map, _ in planned]
+    coverage = CoverageCache()
+    outcomes = executor.run(tasks)
+    for position in range(len(planned)):
+        if not executor.parallel:
+            print(f"rls_bench: {planned[position][0].name} / {planned[position][1].name} (global fixes, every "
+                  f"{every}) ...", file=sys.stderr, flush=True)
+        index, status, result, _ = next(outcomes)
+        reference, spec, grid_map, map_source = planned[index]
+        fields, _ = finish_global_fixes(reference, spec, grid_map, map_source, status, result, every=every,
+                                        coverage=coverage, say=_tqdm_write if executor.parallel else None)
+        if fields is None:
+            del summary[reference.name][spec.name]  # no global_fix: no row
+        else:
             summary[reference.name][spec.name] = fields
     write_summary(out, summary, title=f"rls_bench --global-fixes (every {every}th scan)")
     return summary
