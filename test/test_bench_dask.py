@@ -73,7 +73,7 @@ def kill_the_worker():
     os._exit(9)
 
 
-def test_a_killed_worker_fails_its_run_and_the_others_complete(tmp_path):
+def test_a_killed_worker_fails_its_run_and_the_others_complete(tmp_path, capsys):
     specs = [bench.LocalizerSpec("killer", kill_the_worker), bench.registry_spec("mcl_baseline")]
     executor = bench.DaskExecutor(workers=2, progress=False)
     try:
@@ -81,9 +81,11 @@ def test_a_killed_worker_fails_its_run_and_the_others_complete(tmp_path):
                                       executor=executor)
     finally:
         executor.close()
+    assert "rls_bench: Dask: LocalCluster of 2 process workers, dashboard http://127.0.0.1:" in capsys.readouterr().err
     runs = summary["room_outliers_bounded"]
     assert list(runs) == ["killer", "mcl_baseline"]
-    assert runs["killer"]["error"].startswith("Dask worker failed: KilledWorker")
+    assert runs["killer"]["error"].startswith("Dask worker failed: KilledWorker: Worker process ")
+    assert "was killed by signal 9" in runs["killer"]["error"]
     assert runs["mcl_baseline"]["correct_rate"] == 1.0
 
 

@@ -17,6 +17,7 @@ import hashlib
 import io
 import logging
 import os
+import re
 import shutil
 import sys
 import tarfile
@@ -136,6 +137,39 @@ def _dask_task(func: Callable[..., Any], args: tuple, kwargs: dict[str, Any], ma
     return status, result, time.perf_counter() - started
 
 
+def _serves_dashboard(dask_scheduler: Any = None) -> bool:
+    """On the scheduler: whether it has a dashboard (an HTTP service and bokeh to draw its pages)."""
+    import importlib.util
+
+    services = getattr(dask_scheduler, "services", {})
+    return "dashboard" in services and importlib.util.find_spec("bokeh") is not None
+
+
+class _WorkerDeaths(logging.Handler):
+    """The nannies' "Worker process PID was killed by signal N" lines, by PID.
+
+    The nannies of a ``LocalCluster`` run in this process: their log says how a worker
+    process ended, which the ``KilledWorker`` of its task does not.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.by_pid: dict[int, str] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        match = re.match(r"Worker process (\d+) (was killed|exited)", record.getMessage())
+        if match:
+            self.by_pid[int(match[1])] = record.getMessage()
+
+    def cause(self, exc: BaseException, wait_s: float = 3.0) -> str | None:
+        """How the worker behind ``exc`` (a ``KilledWorker``) ended, if its nanny said so within ``wait_s``."""
+        pid = getattr(getattr(exc, "last_worker", None), "pid", None)
+        deadline = time.monotonic() + wait_s
+        while pid is not None and pid not in self.by_pid and time.monotonic() < deadline:
+            time.sleep(0.05)  # the nanny notices the exit about when the scheduler does
+        return self.by_pid.get(pid) if pid is not None else None
+
+
 @dataclass
 class DaskExecutor:
     """Tasks on a Dask cluster: a ``LocalCluster`` (``scheduler`` None) or an existing one at ``scheduler``.
@@ -158,6 +192,7 @@ class DaskExecutor:
     _client: Any = None
     _cluster: Any = None
     _shipped: dict[Path, Any] = field(default_factory=dict)
+    _deaths: _WorkerDeaths = field(default_factory=_WorkerDeaths)
 
     def connect(self) -> Any:
         """The Dask client, connecting (or starting the LocalCluster) on first use."""
@@ -182,11 +217,16 @@ class DaskExecutor:
             with dask.config.set({"distributed.worker.daemon": False, "distributed.scheduler.allowed-failures": 0}):
                 if not self.child_progress:  # -v: the cluster's own log lines too
                     logging.getLogger("distributed").setLevel(logging.ERROR)
+                nannies = logging.getLogger("distributed.nanny")
+                nannies.setLevel(logging.INFO)
+                nannies.addHandler(self._deaths)
+                nannies.propagate = self.child_progress
                 self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                              dashboard_address="127.0.0.1:0", memory_limit=0,
                                              silence_logs=logging.ERROR)
                 self._client = Client(self._cluster)
-        link = getattr(self._client, "dashboard_link", None)
+        # A scheduler without bokeh serves no dashboard pages (and still has a dashboard_link): name it only then.
+        link = self._client.dashboard_link if self._client.run_on_scheduler(_serves_dashboard) else None
         where = self.scheduler or f"LocalCluster of {self.workers or os.cpu_count() or 1} process workers"
         print(f"rls_bench: Dask: {where}" + (f", dashboard {link}" if link else ""), file=sys.stderr, flush=True)
         return self._client
@@ -218,7 +258,9 @@ class DaskExecutor:
                 try:
                     status, result, seconds = future.result()
                 except Exception as exc:  # noqa: BLE001 - a lost worker fails its run, not the table
-                    status, result, seconds = "error", f"Dask worker failed: {type(exc).__name__}: {exc}", 0.0
+                    cause = self._deaths.cause(exc) if type(exc).__name__ == "KilledWorker" else None
+                    text = f"{cause}: {exc}" if cause else str(exc)
+                    status, result, seconds = "error", f"Dask worker failed: {type(exc).__name__}: {text}", 0.0
                 bar.update(1)
                 yield index, status, result, seconds
         finally:
@@ -230,5 +272,8 @@ class DaskExecutor:
             self._client.close()
         if self._cluster is not None:
             self._cluster.close()
+            nannies = logging.getLogger("distributed.nanny")
+            nannies.removeHandler(self._deaths)
+            nannies.propagate = True
         self._client = self._cluster = None
         self._shipped.clear()
