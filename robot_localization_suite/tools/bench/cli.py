@@ -252,7 +252,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             cv_summary = run_cv(cv_indexes, specs, args.out / "cv", modes=modes, every=args.every,
                                 isolate=not args.in_process, max_seconds=args.max_seconds, plots=not args.no_plots,
                                 honour_skips=args.all or not args.localizers, progress=True,
-                                child_progress=args.verbose)
+                                child_progress=args.verbose, executor=executor)
             if bags:
                 append_cv_section(args.out)
     except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:

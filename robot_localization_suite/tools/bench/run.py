@@ -2,7 +2,9 @@
 
 :func:`run_benchmark` replays every bag through every localizer (``summary.json``,
 ``summary.md``, plots); :func:`run_global_fixes` asks for single-scan global fixes
-instead. Each pair runs in a child process unless ``isolate`` is false.
+instead. Each pair is a task (:func:`replay_task`, :func:`global_fix_task`) for an executor
+(``executor.py``: a child process per run, one after another or on Dask), scored here when it
+comes back (:func:`finish_replay`, :func:`finish_global_fixes`).
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ from .specs import LocalizerSpec
 from .summary import summarize_global_fixes, summarize_run
 from .tables import one_line, write_summary
 
-__all__ = ["run_benchmark", "run_global_fixes", "replay_pair", "replay_task", "finish_replay", "global_fix_pair",
-           "global_fix_task", "finish_global_fixes"]
+__all__ = ["run_benchmark", "run_global_fixes", "replay_task", "finish_replay", "global_fix_task", "finish_global_fixes",
+           "tqdm_write"]
 
 LOG = logging.getLogger("rls_bench")
 
@@ -114,55 +116,6 @@ def finish_replay(
 
 def _sweep_fields(spec: LocalizerSpec) -> dict[str, Any]:
     return {"sweep": dict(spec.sweep)} if spec.sweep else {}
-
-
-def replay_pair(
-    reference: BagReference,
-    spec: LocalizerSpec,
-    grid_map: GridMap | None,
-    map_source: str,
-    *,
-    mode: str,
-    isolate: bool,
-    max_seconds: float | None,
-    progress: bool,
-    child_progress: bool,
-    coverage: CoverageCache,
-    plot_dir: Path | None = None,
-    plot_name: str | None = None,
-) -> tuple[dict[str, Any], OutputScores | None]:
-    """One replay (child process unless not ``isolate``), here and now: :func:`finish_replay` of its result.
-
-    The coverage fields come from ``coverage`` (computed once per bag and map). ``plot_dir``:
-    write the plots there, named ``plot_name`` (default: the localizer's name).
-    """
-    print(f"rls_bench: {reference.name} / {spec.name} ({mode}) ...", file=sys.stderr, flush=True)
-    task = replay_task(reference, spec, grid_map, mode=mode, isolate=isolate, max_seconds=max_seconds,
-                       progress=progress)
-    _, status, result, seconds = next(SequentialExecutor(isolate, max_seconds, child_progress).run([task]))
-    return finish_replay(reference, spec, grid_map, map_source, status, result, seconds, mode=mode,
-                         coverage=coverage, plot_dir=plot_dir, plot_name=plot_name)
-
-
-def global_fix_pair(
-    reference: BagReference,
-    spec: LocalizerSpec,
-    grid_map: GridMap | None,
-    map_source: str,
-    *,
-    every: int,
-    isolate: bool,
-    max_seconds: float | None,
-    child_progress: bool,
-    coverage: CoverageCache,
-) -> tuple[dict[str, Any] | None, OutputScores | None]:
-    """Single-scan global fixes of one localizer on one bag, here and now: :func:`finish_global_fixes`."""
-    print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
-          flush=True)
-    task = global_fix_task(reference, spec, grid_map, every=every, isolate=isolate, max_seconds=max_seconds)
-    _, status, result, _ = next(SequentialExecutor(isolate, max_seconds, child_progress).run([task]))
-    return finish_global_fixes(reference, spec, grid_map, map_source, status, result, every=every,
-                               coverage=coverage)
 
 
 def global_fix_task(reference: BagReference, spec: LocalizerSpec, grid_map: GridMap | None, *, every: int,
@@ -263,7 +216,7 @@ def run_benchmark(
                          max_seconds=max_seconds, progress=progress and not executor.parallel)
              for reference, spec in planned]
     coverage = CoverageCache()
-    say = _tqdm_write if executor.parallel else None
+    say = tqdm_write if executor.parallel else None
     outcomes = executor.run(tasks)
     for position in range(len(planned)):
         if not executor.parallel:  # lazily, one at a time: announce the run about to start
@@ -284,7 +237,8 @@ def run_benchmark(
     return summary
 
 
-def _tqdm_write(line: str) -> None:
+def tqdm_write(line: str) -> None:
+    """A run's one-line result above the Dask progress bar."""
     from tqdm import tqdm
 
     tqdm.write(line, file=sys.stderr)
@@ -330,7 +284,7 @@ def run_global_fixes(
         index, status, result, _ = next(outcomes)
         reference, spec, grid_map, map_source = planned[index]
         fields, _ = finish_global_fixes(reference, spec, grid_map, map_source, status, result, every=every,
-                                        coverage=coverage, say=_tqdm_write if executor.parallel else None)
+                                        coverage=coverage, say=tqdm_write if executor.parallel else None)
         if fields is None:
             del summary[reference.name][spec.name]  # no global_fix: no row
         else:
