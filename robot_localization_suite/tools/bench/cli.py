@@ -154,14 +154,15 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--in-process", action="store_true", help="run in this process, one after another, not one "
                         "child per run (no Dask)")
     parser.add_argument("--workers", type=int, default=None, metavar="N",
-                        help="replays run as tasks of a local Dask cluster of N process workers, one thread each "
+                        help="the runs (replays, global fixes, --cv) are tasks of a local Dask cluster of N "
+                        "process workers, one thread each "
                         "(default: as many as CPUs, when dask[distributed] is installed: the 'scale' extra); each "
                         "task still runs in its own child process. 0: no Dask, one child process after another")
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                        help="submit the replays to the existing Dask cluster of this scheduler. Its workers need "
+                        help="submit the runs to the existing Dask cluster of this scheduler. Its workers need "
                         "this package installed, must not be daemons (DASK_DISTRIBUTED__WORKER__DAEMON=False) and "
-                        "read every bag, map and params file at the path given here (a shared file system), "
-                        "unless --ship-bags")
+                        "read each bag at the path given here (a shared file system) unless --ship-bags; maps and "
+                        "settings go with each task")
     parser.add_argument("--ship-bags", action="store_true",
                         help="with Dask: send each bag directory from here to the workers (unpacked once per worker "
                         "host in its temp directory) instead of having them read it at the same path")
