@@ -36,7 +36,7 @@ HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[ros,test,interfaces,viz]"
+	$(PY) -m pip install --quiet -e ".[ros,test,interfaces,viz,scale]"
 	touch $(STAMP)
 
 # Once (again when interfaces/ or the install changes): colcon with the ament_cmake/rosidl wheels,

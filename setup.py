@@ -73,6 +73,11 @@ setup(
         ],
         # rls_demo --foxglove: the run served live over the Foxglove WebSocket protocol (ros/foxglove_live.py).
         "viz": ["foxglove-sdk==0.30.3"],
+        # rls_bench on a Dask cluster (tools/bench/executor.py): a LocalCluster here, or --scheduler;
+        # diagnostics brings bokeh, without which the scheduler serves no dashboard.
+        "scale": ["dask[distributed,diagnostics]==2026.8.0", "distributed==2026.8.0"],
+        # Optional: rls_bench --export-tum also reports evo's APE RMSE (tools/bench/trajectories.py).
+        "evo": ["evo==1.38.1"],
         # Only for tools/ial_benchmark.py --codac: the measured comparison behind core/ial.py's choice of numba.
         "compare": ["codac==2.1.2"],
         "test": [

@@ -174,3 +174,32 @@ def test_command_line_runs_the_splits_after_the_bags_and_appends_their_tables(co
     assert calls[-1][3]["modes"] == ["global"] and not calls[-1][3]["honour_skips"]  # named: run as asked
     assert (tmp_path / "b" / "summary.md").read_text() == "# replays global\n\n## cv\n\n### tracking: pooled\n"
     assert bench.main(["--cv", str(split.index), "--map", str(split.full_map_yaml), "--out", str(tmp_path)]) == 1
+
+
+def test_the_splits_on_two_dask_workers_pool_as_in_this_process(corridor_split, tmp_path):
+    pytest.importorskip("distributed")
+    split, truth = corridor_split
+    specs = [spec(truth, uneven, "uneven"), spec(truth, lost_in_block_3, "lost3")]
+    modes = ["global", "global_fixes"]
+    here = cv.run_cv([split.index], specs, tmp_path / "here", modes=modes, every=2, isolate=False, plots=False)
+    executor = bench.DaskExecutor(workers=2, progress=False)
+    try:
+        on_dask = cv.run_cv([split.index], specs, tmp_path / "dask", modes=modes, every=2, plots=False,
+                            executor=executor)
+    finally:
+        executor.close()
+    for summary in (here, on_dask):  # timing and memory differ; the pooled and per-block rates may not
+        for mode in modes:
+            for runs in summary[mode]["blocks"].values():
+                for entry in runs.values():
+                    for fields in entry.values():
+                        for key in [k for k in fields if k.startswith(("update_ms", "fix_ms", "peak_rss", "wall_s",
+                                                                        "map_setup"))]:
+                            del fields[key]
+            for pooled in summary[mode]["pooled"].values():
+                for entry in pooled.values():
+                    for kind in ("honest", "same_map"):
+                        for key in [k for k in entry[kind] if k.startswith(("update_ms", "fix_ms", "peak_rss"))]:
+                            del entry[kind][key]
+    assert on_dask["global"] == here["global"] and on_dask["global_fixes"] == here["global_fixes"]
+    assert list(on_dask["global_fixes"]["blocks"]["corridor_cv1of3"]) == ["uneven", "lost3"]

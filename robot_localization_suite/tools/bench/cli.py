@@ -2,7 +2,8 @@
 
     rls_bench BAG... --localizers NAMES --out DIR [--map MAP_YAML] [--mode global|tracking]
               [--set name.param=value ...] [--params-file NAME=PATH ...] [--profile paper]
-              [--max-seconds S] [--no-plots]
+              [--max-seconds S] [--no-plots] [--sweep name.param=v1,v2,...] [--export-tum DIR]
+              [--workers N | --scheduler tcp://HOST:PORT [--ship-bags]]
     rls_bench --global-fixes [--every N] BAG... [--localizers NAMES] --out DIR
     rls_bench --all [--with-global-fixes] [--out results]
     rls_bench --cv SPLIT... [--localizers NAMES] [--mode M] [--with-tracking] [--with-global-fixes] --out DIR
@@ -26,8 +27,10 @@ from ... import registry
 from ...core.errors import BagError, LocalizationSuiteError
 from .cv import cv_modes, find_split_indexes, run_cv
 from .cv_tables import append_cv_section, cv_tables
+from .executor import DaskExecutor, Executor, SequentialExecutor, dask_available
 from .run import run_benchmark, run_global_fixes
 from .specs import registry_spec
+from .sweeps import parse_sweeps, sweep_specs
 from .tables import append_section, summary_table
 
 __all__ = ["main", "discover_bags", "default_bags_dir"]
@@ -87,6 +90,29 @@ def discover_bags(bags_dir: Path) -> list[Path]:
 
 
 
+def _executor(args: argparse.Namespace) -> Executor:
+    """Where the replays run: Dask (default when installed, ``--workers``, ``--scheduler``) or one after another."""
+    dask_asked = args.scheduler is not None or args.ship_bags or (args.workers or 0) > 0
+    if args.workers is not None and args.workers < 0:
+        raise ValueError(f"--workers must be 0 or more, got {args.workers}")
+    if args.scheduler is not None and args.workers is not None:
+        raise ValueError("--workers starts a local cluster; an existing one (--scheduler) has its own workers")
+    if args.in_process or args.workers == 0:
+        if dask_asked:
+            raise ValueError("--workers N, --scheduler and --ship-bags run on Dask: not with --in-process or --workers 0")
+        return SequentialExecutor(isolate=not args.in_process, max_seconds=args.max_seconds,
+                                  child_progress=args.verbose)
+    if not dask_available():
+        if dask_asked:
+            raise ValueError("Dask is not installed: pip install -e '.[scale]' (or run without --workers, "
+                             "--scheduler, --ship-bags)")
+        print("rls_bench: dask.distributed is not installed (the 'scale' extra): one child process after another",
+              file=sys.stderr)
+        return SequentialExecutor(isolate=True, max_seconds=args.max_seconds, child_progress=args.verbose)
+    return DaskExecutor(scheduler=args.scheduler, workers=args.workers, ship_bags=args.ship_bags,
+                        max_seconds=args.max_seconds, child_progress=args.verbose)
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rls_bench",
@@ -125,7 +151,29 @@ def _parser() -> argparse.ArgumentParser:
                         "and on the whole-log map, in the modes the other options ask for; into OUT/cv (appended to "
                         "OUT/summary.md when bags run too)")
     parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
-    parser.add_argument("--in-process", action="store_true", help="run in this process, not one child per run")
+    parser.add_argument("--in-process", action="store_true", help="run in this process, one after another, not one "
+                        "child per run (no Dask)")
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="the runs (replays, global fixes, --cv) are tasks of a local Dask cluster of N "
+                        "process workers, one thread each "
+                        "(default: as many as CPUs, when dask[distributed] is installed: the 'scale' extra); each "
+                        "task still runs in its own child process. 0: no Dask, one child process after another")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                        help="submit the runs to the existing Dask cluster of this scheduler. Its workers need "
+                        "this package installed, must not be daemons (DASK_DISTRIBUTED__WORKER__DAEMON=False) and "
+                        "read each bag at the path given here (a shared file system) unless --ship-bags; maps and "
+                        "settings go with each task")
+    parser.add_argument("--ship-bags", action="store_true",
+                        help="with Dask: send each bag directory from here to the workers (unpacked once per worker "
+                        "host in its temp directory) instead of having them read it at the same path")
+    parser.add_argument("--sweep", action="append", default=[], metavar="NAME.PARAM=V1,V2,...",
+                        help="run the grid of these parameter values (YAML values, repeat for more parameters) on "
+                        "every bag; OUT/sweep.md and sweep.json hold a row per point with the parameters as columns, "
+                        "OUT/plots/sweep_NAME.PARAM.png the metrics against each. Without --localizers only the "
+                        "swept localizers run")
+    parser.add_argument("--export-tum", type=Path, default=None, metavar="DIR",
+                        help="write each replay's estimates and the ground truth in TUM format into "
+                        "DIR/<mode>/<bag>/ (for evo_ape, evo_rpe); with evo installed also report its APE RMSE")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log the localizers' warnings and show their precomputation progress bars")
@@ -135,6 +183,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(name)s: %(message)s")
+    executor: Executor | None = None
     try:
         overrides = _parse_overrides(args.overrides)
         params_files = _parse_params_files(args.params_files)
@@ -147,8 +196,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError("no bag given (pass BAG..., --all or --cv SPLIT)")
         if cv_indexes and args.map is not None:
             raise ValueError("--map does not apply to --cv: each block runs on its own map and the whole-log map")
+        sweeps = parse_sweeps(args.sweep)
         available = list(registry.PLUGINS)
-        names = _split_names(args.localizers) or available
+        names = _split_names(args.localizers) or [n for n in available if n in sweeps] or available
         unknown = [n for n in names if n not in available]
         if unknown:
             raise ValueError(f"localizer(s) {', '.join(unknown)} not available; available: {', '.join(available) or 'none'}")
@@ -156,38 +206,43 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise ValueError("no localizer is available in this checkout")
         if set(params_files) - set(names):
             raise ValueError(f"--params-file names a localizer not run: {', '.join(sorted(set(params_files) - set(names)))}")
+        if set(sweeps) - set(names):
+            raise ValueError(f"--sweep names a localizer not run: {', '.join(sorted(set(sweeps) - set(names)))}")
         specs = []
         for name in names:
             params_file = params_files.get(name)
             if params_file is None and args.profile:
                 params_file = _profile_file(name, args.profile)
-            spec = registry_spec(name, overrides.get(name), params_file)
-            if name in skips:
-                spec = dataclasses.replace(spec, skip={**spec.skip, **skips[name]})
-            specs.append(spec)
+            # Every grid point's settings are built (and checked) here, before anything is submitted.
+            own = (sweep_specs(name, sweeps[name], overrides.get(name), params_file) if name in sweeps
+                   else [registry_spec(name, overrides.get(name), params_file)])
+            specs += [dataclasses.replace(spec, skip={**spec.skip, **skips[name]}) if name in skips else spec
+                      for spec in own]
+        executor = _executor(args)
         summary = None
         if bags and args.global_fixes:
             summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
                                        isolate=not args.in_process, max_seconds=args.max_seconds,
-                                       honour_skips=args.all, child_progress=args.verbose)
+                                       honour_skips=args.all, child_progress=args.verbose, executor=executor)
         elif bags:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
-                                    child_progress=args.verbose)
+                                    child_progress=args.verbose, executor=executor, export_tum=args.export_tum)
             if args.with_tracking and args.mode == "global":
                 print(summary_table(summary))
                 summary = run_benchmark(bags, specs, args.out / "tracking", mode="tracking", map_yaml=args.map,
                                         isolate=not args.in_process, max_seconds=args.max_seconds,
                                         plots=not args.no_plots, honour_skips=args.all, progress=True,
-                                        child_progress=args.verbose)
+                                        child_progress=args.verbose, executor=executor,
+                                        export_tum=args.export_tum)
                 append_section(args.out, "tracking")
             if args.with_global_fixes:
                 print(summary_table(summary))
                 summary = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
                                            map_yaml=args.map, isolate=not args.in_process,
                                            max_seconds=args.max_seconds, honour_skips=args.all,
-                                           child_progress=args.verbose)
+                                           child_progress=args.verbose, executor=executor)
                 append_section(args.out, "global_fixes")
         cv_summary = None
         if cv_indexes:
@@ -198,12 +253,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             cv_summary = run_cv(cv_indexes, specs, args.out / "cv", modes=modes, every=args.every,
                                 isolate=not args.in_process, max_seconds=args.max_seconds, plots=not args.no_plots,
                                 honour_skips=args.all or not args.localizers, progress=True,
-                                child_progress=args.verbose)
+                                child_progress=args.verbose, executor=executor)
             if bags:
                 append_cv_section(args.out)
     except (ValueError, KeyError, LocalizationSuiteError, BagError) as exc:
         print(f"rls_bench: error: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if isinstance(executor, DaskExecutor):
+            executor.close()  # stops the LocalCluster started for these runs
     if cv_summary is not None:
         print(cv_tables(cv_summary))
         print(f"written: {args.out / 'cv' / 'summary.json'}, {args.out / 'cv' / 'summary.md'}")

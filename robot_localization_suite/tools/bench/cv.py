@@ -21,8 +21,9 @@ from ...core.errors import LocalizationSuiteError
 from ...core.grid_map import GridMap, load_map_yaml
 from ..carmen_cv import INDEX_FORMAT, MIN_BLOCK_SCANS, STATUS_OK, block_stem
 from .coverage import CoverageCache, OutputScores, pooled_fields
+from .executor import Executor, SequentialExecutor
 from .reference import SCAN_TOPIC, TRUTH_TOPIC, BagReference, load_reference
-from .run import global_fix_pair, replay_pair
+from .run import finish_global_fixes, finish_replay, global_fix_task, replay_task, tqdm_write
 from .specs import LocalizerSpec
 
 __all__ = ["MAP_KINDS", "CvBlockRun", "CvLog", "find_split_indexes", "read_split", "cv_modes", "run_cv"]
@@ -202,6 +203,7 @@ def run_cv(
     honour_skips: bool = True,
     progress: bool = False,
     child_progress: bool = False,
+    executor: Executor | None = None,
 ) -> dict[str, Any]:
     """Run every laser localizer over every block of the splits, honest map and whole-log map, in ``modes``.
 
@@ -211,7 +213,8 @@ def run_cv(
     into ``out_dir`` and returns the summary: ``splits`` (the blocks read), and per mode
     ``pooled`` (log -> localizer -> ``honest`` / ``same_map`` fields) and ``blocks``
     (block -> localizer -> ``honest`` / ``same_map`` run fields). Skipped blocks and failed runs
-    are entries with their reason; the other blocks go on.
+    are entries with their reason; the other blocks go on. ``executor``: where the runs happen
+    (default: one after another, as :func:`.run.run_benchmark`).
     """
     from .cv_tables import write_cv_summary
 
@@ -229,7 +232,8 @@ def run_cv(
     scores: dict[str, dict[tuple[str, str, str], OutputScores]] = {mode: {} for mode in modes}
     coverage = CoverageCache()
     maps_cache: dict[Path, GridMap] = {}
-    no_global_fix: set[str] = set()
+    # Every run is planned first, then handed to the executor as one list, then scored as it comes back.
+    planned: list[tuple[str, str, LocalizerSpec, str, BagReference, GridMap, str]] = []
     for log in logs:
         summary["splits"][log.name] = {"index": str(log.index), "full_map": str(log.full_map), "blocks": {}}
         for block in log.blocks:
@@ -243,34 +247,46 @@ def run_cv(
             for mode in modes:
                 entries = runs[mode].setdefault(block.name, {})
                 for spec in specs:
-                    if mode == "global_fixes" and spec.name in no_global_fix:
-                        continue
                     skip = reason or (spec.skip_reason(block.name, mode) if honour_skips else None)
                     if skip is not None or reference is None:
                         entries[spec.name] = {"skipped": skip}
                         continue
+                    entries[spec.name] = {}  # the planned order; dropped if it stays empty (no global_fix)
                     run_spec = spec.for_bag(block.name)
-                    entry: dict[str, Any] = {}
-                    for kind in MAP_KINDS:
-                        source = str(block.maps[kind])
-                        if mode == "global_fixes":
-                            fields, scored = global_fix_pair(
-                                reference, run_spec, maps[kind], source, every=every, isolate=isolate,
-                                max_seconds=max_seconds, child_progress=child_progress, coverage=coverage)
-                            if fields is None:
-                                no_global_fix.add(spec.name)
-                                break
-                        else:
-                            fields, scored = replay_pair(
-                                reference, run_spec, maps[kind], source, mode=mode, isolate=isolate,
-                                max_seconds=max_seconds, progress=progress, child_progress=child_progress,
-                                coverage=coverage, plot_dir=out / "plots" / mode / block.name if plots else None,
-                                plot_name=f"{spec.name}_{kind}")
-                        entry[kind] = fields
-                        if scored is not None:
-                            scores[mode][(block.name, spec.name, kind)] = scored
-                    if entry:
-                        entries[spec.name] = entry
+                    planned += [(mode, block.name, run_spec, kind, reference, maps[kind], str(block.maps[kind]))
+                                for kind in MAP_KINDS]
+    if executor is None:
+        executor = SequentialExecutor(isolate, max_seconds, child_progress)
+    tasks = [global_fix_task(reference, run_spec, grid_map, every=every, isolate=executor.isolate,
+                             max_seconds=max_seconds) if mode == "global_fixes"
+             else replay_task(reference, run_spec, grid_map, mode=mode, isolate=executor.isolate,
+                              max_seconds=max_seconds, progress=progress and not executor.parallel)
+             for mode, _, run_spec, _, reference, grid_map, _ in planned]
+    say = tqdm_write if executor.parallel else None
+    outcomes = executor.run(tasks)
+    for position in range(len(planned)):
+        mode, block_name, run_spec, kind, reference, grid_map, source = planned[position]
+        if not executor.parallel:
+            print(f"rls_bench: {block_name} / {run_spec.name} ({mode}, {kind}) ...", file=sys.stderr, flush=True)
+        index, status, result, seconds = next(outcomes)
+        mode, block_name, run_spec, kind, reference, grid_map, source = planned[index]
+        fields: dict[str, Any] | None
+        if mode == "global_fixes":
+            fields, scored = finish_global_fixes(reference, run_spec, grid_map, source, status, result, every=every,
+                                                 coverage=coverage, say=say)
+        else:
+            fields, scored = finish_replay(
+                reference, run_spec, grid_map, source, status, result, seconds, mode=mode, coverage=coverage,
+                plot_dir=out / "plots" / mode / block_name if plots else None, plot_name=f"{run_spec.name}_{kind}",
+                say=say)
+        if fields is not None:
+            runs[mode][block_name][run_spec.name][kind] = fields
+        if scored is not None:
+            scores[mode][(block_name, run_spec.name, kind)] = scored
+    for mode in modes:
+        for entries in runs[mode].values():
+            for name in [name for name, entry in entries.items() if not entry]:
+                del entries[name]  # a localizer without global_fix: no entry, as before
     for mode in modes:
         summary[mode] = {"pooled": _pool(logs, specs, runs[mode], scores[mode]), "blocks": runs[mode]}
     write_cv_summary(out, summary)

@@ -2,30 +2,33 @@
 
 :func:`run_benchmark` replays every bag through every localizer (``summary.json``,
 ``summary.md``, plots); :func:`run_global_fixes` asks for single-scan global fixes
-instead. Each pair runs in a child process unless ``isolate`` is false.
+instead. Each pair is a task (:func:`replay_task`, :func:`global_fix_task`) for an executor
+(``executor.py``: a child process per run, one after another or on Dask), scored here when it
+comes back (:func:`finish_replay`, :func:`finish_global_fixes`).
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
-import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from ...core.grid_map import GridMap
 from .coverage import CoverageCache, OutputScores, global_fix_scores, replay_scores, run_coverage_fields
+from .executor import Executor, SequentialExecutor, Task
 from .global_fixes import global_fix_localizer
-from .isolation import call_guarded
 from .reference import IMAGE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference, load_reference, map_candidates, resolve_map
 from .replay import replay_localizer
 from .specs import LocalizerSpec
 from .summary import summarize_global_fixes, summarize_run
 from .tables import one_line, write_summary
 
-__all__ = ["run_benchmark", "run_global_fixes", "replay_pair", "global_fix_pair"]
+__all__ = ["run_benchmark", "run_global_fixes", "replay_task", "finish_replay", "global_fix_task", "finish_global_fixes",
+           "tqdm_write"]
 
 LOG = logging.getLogger("rls_bench")
 
@@ -47,35 +50,47 @@ def _plan(
                 yield reference, spec.for_bag(reference.name), None
 
 
-def replay_pair(
+def replay_task(
     reference: BagReference,
     spec: LocalizerSpec,
     grid_map: GridMap | None,
-    map_source: str,
     *,
     mode: str,
     isolate: bool,
     max_seconds: float | None,
     progress: bool,
-    child_progress: bool,
+) -> Task:
+    """The run of one bag through one localizer, as a task for an executor (``executor.py``)."""
+    kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
+    return Task(f"{reference.name}/{spec.name}", replay_localizer, (reference, spec, grid_map), kwargs,
+                bag=reference.path)
+
+
+def finish_replay(
+    reference: BagReference,
+    spec: LocalizerSpec,
+    grid_map: GridMap | None,
+    map_source: str,
+    status: str,
+    result: Any,
+    seconds: float,
+    *,
+    mode: str,
     coverage: CoverageCache,
     plot_dir: Path | None = None,
     plot_name: str | None = None,
+    tum_dir: Path | None = None,
+    say: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any], OutputScores | None]:
-    """One replay (child process unless not ``isolate``): its ``summary.json`` fields and per-output scores.
+    """A finished run's ``summary.json`` fields and per-output scores, its plots and TUM files.
 
-    The coverage fields come from ``coverage`` (computed once per bag and map). A failed run
-    gives ``{"mode", "error"}`` and no scores. ``plot_dir``: write the plots there, named
-    ``plot_name`` (default: the localizer's name).
+    ``status``/``result`` as :func:`.isolation.call_guarded` returns them; ``seconds``: the
+    run's wall time. A failed run gives ``{"mode", "error"}`` and no scores. ``say``: where the
+    one-line result goes (default: stderr).
     """
-    print(f"rls_bench: {reference.name} / {spec.name} ({mode}) ...", file=sys.stderr, flush=True)
-    kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
-    started = time.perf_counter()
-    status, result = call_guarded(replay_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
-                                  max_seconds=max_seconds, child_progress=child_progress)
     if status != "ok":
         LOG.error("[%s/%s] failed: %s", reference.name, spec.name, result)
-        return {"mode": mode, "error": str(result).splitlines()[0]}, None
+        return {"mode": mode, "error": str(result).splitlines()[0], **_sweep_fields(spec)}, None
     fields, series = summarize_run(result, reference)
     scan_coverage = None if spec.uses_camera else coverage.get(reference, grid_map, map_source, spec.mount)
     scores = replay_scores(result, series, scan_coverage)
@@ -84,36 +99,49 @@ def replay_pair(
     fields["map"] = map_source
     if spec.params is not None:
         fields["params"] = spec.params
-    fields["wall_s"] = round(time.perf_counter() - started, 1)
-    print(f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}", file=sys.stderr, flush=True)
+    fields.update(_sweep_fields(spec))
+    fields["wall_s"] = round(seconds, 1)
+    line = f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}"
+    (say or functools.partial(print, file=sys.stderr, flush=True))(line)
     if plot_dir is not None:
         from .plots import plot_run  # matplotlib only when plots are asked for
 
         plot_run(plot_dir, plot_name or spec.name, grid_map, reference, result, series)
+    if tum_dir is not None:
+        from .trajectories import export_run
+
+        fields.update(export_run(tum_dir, reference, result, series, name=plot_name or spec.name))
     return fields, scores
 
 
-def global_fix_pair(
+def _sweep_fields(spec: LocalizerSpec) -> dict[str, Any]:
+    return {"sweep": dict(spec.sweep)} if spec.sweep else {}
+
+
+def global_fix_task(reference: BagReference, spec: LocalizerSpec, grid_map: GridMap | None, *, every: int,
+                    isolate: bool, max_seconds: float | None) -> Task:
+    """The global fixes of one localizer on one bag, as a task for an executor."""
+    kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
+    return Task(f"{reference.name}/{spec.name}/global_fixes", global_fix_localizer, (reference, spec, grid_map),
+                kwargs, bag=reference.path)
+
+
+def finish_global_fixes(
     reference: BagReference,
     spec: LocalizerSpec,
     grid_map: GridMap | None,
     map_source: str,
+    status: str,
+    result: Any,
     *,
     every: int,
-    isolate: bool,
-    max_seconds: float | None,
-    child_progress: bool,
     coverage: CoverageCache,
+    say: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, Any] | None, OutputScores | None]:
-    """Single-scan global fixes of one localizer on one bag: fields and per-fix scores.
+    """Fields and per-fix scores of finished global fixes (``status``/``result`` of the task).
 
     Fields None: the localizer has no ``global_fix``. A failed run gives ``{"mode", "error"}``.
     """
-    print(f"rls_bench: {reference.name} / {spec.name} (global fixes, every {every}) ...", file=sys.stderr,
-          flush=True)
-    kwargs = {"every": every, "max_seconds": max_seconds, "sample_rss": not isolate}
-    status, result = call_guarded(global_fix_localizer, (reference, spec, grid_map), kwargs, isolate=isolate,
-                                  max_seconds=max_seconds, child_progress=child_progress)
     if status != "ok":
         return {"mode": "global_fixes", "error": str(result).splitlines()[0]}, None
     if not result.supported:
@@ -123,12 +151,14 @@ def global_fix_pair(
     fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
     if spec.params is not None:
         fields["params"] = spec.params
+    fields.update(_sweep_fields(spec))
     scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
     scores = global_fix_scores(result, scan_coverage)
     if scan_coverage is not None:
         fields.update(run_coverage_fields(scores))
-    print(f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
-          f"fix {fields['fix_ms_median']} ms", file=sys.stderr, flush=True)
+    (say or functools.partial(print, file=sys.stderr, flush=True))(
+        f"rls_bench: {reference.name} / {spec.name}: global_correct_rate {fields['global_correct_rate']}, "
+        f"fix {fields['fix_ms_median']} ms")
     return fields, scores
 
 
@@ -145,14 +175,23 @@ def run_benchmark(
     honour_skips: bool = False,
     progress: bool = False,
     child_progress: bool = False,
+    executor: Executor | None = None,
+    export_tum: str | os.PathLike[str] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots.
 
-    ``progress``: a replay progress bar per run; ``child_progress``: the localizers'
-    own precomputation bars in child runs (off: ``TQDM_DISABLE=1`` for the child).
+    ``executor``: where the runs happen (``executor.py``; default: one after another, each in
+    a child process unless not ``isolate``, with ``max_seconds`` and ``child_progress``);
+    ``progress``: a replay progress bar per run when they run one after another;
+    ``child_progress``: the localizers' own precomputation bars in child runs (off:
+    ``TQDM_DISABLE=1`` for the child). Specs that carry ``sweep`` values add the sweep
+    table and plots (``sweeps.py``). ``export_tum``: each run's estimates and the ground
+    truth in TUM format there (``trajectories.py``).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if executor is None:
+        executor = SequentialExecutor(isolate, max_seconds, child_progress)
     references = [load_reference(b) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
     maps: dict[str, tuple[GridMap | None, str]] = {}
@@ -161,7 +200,7 @@ def run_benchmark(
         if reference.ground_truth is None:
             LOG.warning("bag %s has no %s: reporting timing only", reference.name, TRUTH_TOPIC)
             print(f"rls_bench: bag {reference.name} has no {TRUTH_TOPIC}; reporting timing only", file=sys.stderr)
-    coverage = CoverageCache()
+    planned: list[tuple[BagReference, LocalizerSpec]] = []
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode=mode):
         if skip is not None:
             summary[reference.name][spec.name] = {"mode": mode, "skipped": skip}
@@ -171,12 +210,38 @@ def run_benchmark(
             summary[reference.name][spec.name] = {"mode": mode, "error": "no map: give --map, a /map in the bag, "
                                                   f"or one of {', '.join(str(p) for p in map_candidates(reference.name))}"}
             continue
-        summary[reference.name][spec.name], _ = replay_pair(
-            reference, spec, grid_map, map_source, mode=mode, isolate=isolate, max_seconds=max_seconds,
-            progress=progress, child_progress=child_progress, coverage=coverage,
-            plot_dir=out / "plots" / reference.name if plots else None)
+        summary[reference.name][spec.name] = {}  # the table keeps the planned order, whatever finishes first
+        planned.append((reference, spec))
+    tasks = [replay_task(reference, spec, maps[reference.name][0], mode=mode, isolate=executor.isolate,
+                         max_seconds=max_seconds, progress=progress and not executor.parallel)
+             for reference, spec in planned]
+    coverage = CoverageCache()
+    say = tqdm_write if executor.parallel else None
+    outcomes = executor.run(tasks)
+    for position in range(len(planned)):
+        if not executor.parallel:  # lazily, one at a time: announce the run about to start
+            print(f"rls_bench: {planned[position][0].name} / {planned[position][1].name} ({mode}) ...",
+                  file=sys.stderr, flush=True)
+        index, status, result, seconds = next(outcomes)
+        reference, spec = planned[index]
+        grid_map, map_source = maps[reference.name]
+        summary[reference.name][spec.name], _ = finish_replay(
+            reference, spec, grid_map, map_source, status, result, seconds, mode=mode, coverage=coverage,
+            plot_dir=out / "plots" / reference.name if plots else None,
+            tum_dir=Path(export_tum) / mode / reference.name if export_tum is not None else None, say=say)
     write_summary(out, summary, title=f"rls_bench ({mode} mode)")
+    if any(spec.sweep for spec in specs):
+        from .sweeps import write_sweep
+
+        write_sweep(out, summary, mode=mode, plots=plots)
     return summary
+
+
+def tqdm_write(line: str) -> None:
+    """A run's one-line result above the Dask progress bar."""
+    from tqdm import tqdm
+
+    tqdm.write(line, file=sys.stderr)
 
 
 def run_global_fixes(
@@ -190,23 +255,39 @@ def run_global_fixes(
     max_seconds: float | None = None,
     honour_skips: bool = False,
     child_progress: bool = False,
+    executor: Executor | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary.
 
-    ``child_progress``: as in :func:`run_benchmark`.
+    ``executor``, ``child_progress``: as in :func:`run_benchmark`.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if executor is None:
+        executor = SequentialExecutor(isolate, max_seconds, child_progress)
     references = [load_reference(b) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
-    coverage = CoverageCache()
+    planned: list[tuple[BagReference, LocalizerSpec, GridMap | None, str]] = []
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode="global_fixes"):
         if skip is not None or spec.uses_camera:
             continue
-        grid_map, map_source = resolve_map(reference, map_yaml)
-        fields, _ = global_fix_pair(reference, spec, grid_map, map_source, every=every, isolate=isolate,
-                                    max_seconds=max_seconds, child_progress=child_progress, coverage=coverage)
-        if fields is not None:
+        planned.append((reference, spec, *resolve_map(reference, map_yaml)))
+        summary[reference.name][spec.name] = {}  # the planned order, whatever finishes first
+    tasks = [global_fix_task(reference, spec, grid_map, every=every, isolate=executor.isolate,
+                             max_seconds=max_seconds) for reference, spec, grid_map, _ in planned]
+    coverage = CoverageCache()
+    outcomes = executor.run(tasks)
+    for position in range(len(planned)):
+        if not executor.parallel:
+            print(f"rls_bench: {planned[position][0].name} / {planned[position][1].name} (global fixes, every "
+                  f"{every}) ...", file=sys.stderr, flush=True)
+        index, status, result, _ = next(outcomes)
+        reference, spec, grid_map, map_source = planned[index]
+        fields, _ = finish_global_fixes(reference, spec, grid_map, map_source, status, result, every=every,
+                                        coverage=coverage, say=tqdm_write if executor.parallel else None)
+        if fields is None:
+            del summary[reference.name][spec.name]  # no global_fix: no row
+        else:
             summary[reference.name][spec.name] = fields
     write_summary(out, summary, title=f"rls_bench --global-fixes (every {every}th scan)")
     return summary

@@ -37,6 +37,7 @@ class LocalizerSpec:
         skip_global: the same, in global mode and global fixes only.
         params: the params file the settings were read from, if not the packaged one (reported).
         per_bag: bag-name glob -> the spec to use for those bags instead (other params).
+        sweep: ``name.param`` -> value of a ``--sweep`` point this spec runs (reported as columns).
     """
 
     name: str
@@ -47,6 +48,7 @@ class LocalizerSpec:
     skip_global: Mapping[str, str] = field(default_factory=dict)
     params: str | None = None
     per_bag: Mapping[str, LocalizerSpec] = field(default_factory=dict)
+    sweep: Mapping[str, Any] = field(default_factory=dict)
 
     def skip_reason(self, bag_name: str, mode: str = "global") -> str | None:
         """Why ``--all`` leaves this bag out in ``mode`` (global, tracking, global_fixes), or None."""
