@@ -174,6 +174,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--export-tum", type=Path, default=None, metavar="DIR",
                         help="write each replay's estimates and the ground truth in TUM format into "
                         "DIR/<mode>/<bag>/ (for evo_ape, evo_rpe); with evo installed also report its APE RMSE")
+    parser.add_argument("--record", type=Path, default=None, metavar="DIR",
+                        help="also record each replay as one MCAP that Foxglove opens (the bag's messages, the "
+                        "localizer's outputs as its node publishes them, each output's error): "
+                        "DIR/<bag>_<localizer>_<mode>/ (docs/demo.md; config/foxglove_demo_layout.json shows it)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log the localizers' warnings and show their precomputation progress bars")
@@ -228,14 +232,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
-                                    child_progress=args.verbose, executor=executor, export_tum=args.export_tum)
+                                    child_progress=args.verbose, executor=executor, export_tum=args.export_tum,
+                                    record=args.record)
             if args.with_tracking and args.mode == "global":
                 print(summary_table(summary))
                 summary = run_benchmark(bags, specs, args.out / "tracking", mode="tracking", map_yaml=args.map,
                                         isolate=not args.in_process, max_seconds=args.max_seconds,
                                         plots=not args.no_plots, honour_skips=args.all, progress=True,
                                         child_progress=args.verbose, executor=executor,
-                                        export_tum=args.export_tum)
+                                        export_tum=args.export_tum, record=args.record)
                 append_section(args.out, "tracking")
             if args.with_global_fixes:
                 print(summary_table(summary))

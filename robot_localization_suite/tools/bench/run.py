@@ -59,9 +59,12 @@ def replay_task(
     isolate: bool,
     max_seconds: float | None,
     progress: bool,
+    record_dir: Path | None = None,
 ) -> Task:
-    """The run of one bag through one localizer, as a task for an executor (``executor.py``)."""
-    kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress}
+    """The run of one bag through one localizer, as a task for an executor (``executor.py``); with ``record_dir``
+    the run is also recorded there as one MCAP (``replay.py``)."""
+    kwargs = {"mode": mode, "max_seconds": max_seconds, "sample_rss": not isolate, "progress": progress,
+              "record_dir": record_dir}
     return Task(f"{reference.name}/{spec.name}", replay_localizer, (reference, spec, grid_map), kwargs,
                 bag=reference.path)
 
@@ -177,6 +180,7 @@ def run_benchmark(
     child_progress: bool = False,
     executor: Executor | None = None,
     export_tum: str | os.PathLike[str] | None = None,
+    record: str | os.PathLike[str] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots.
 
@@ -186,7 +190,8 @@ def run_benchmark(
     ``child_progress``: the localizers' own precomputation bars in child runs (off:
     ``TQDM_DISABLE=1`` for the child). Specs that carry ``sweep`` values add the sweep
     table and plots (``sweeps.py``). ``export_tum``: each run's estimates and the ground
-    truth in TUM format there (``trajectories.py``).
+    truth in TUM format there (``trajectories.py``). ``record``: each run as one MCAP that Foxglove opens,
+    ``<record>/<bag>_<localizer>_<mode>/`` (``replay.py``; on a cluster, on the worker's file system).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -213,7 +218,8 @@ def run_benchmark(
         summary[reference.name][spec.name] = {}  # the table keeps the planned order, whatever finishes first
         planned.append((reference, spec))
     tasks = [replay_task(reference, spec, maps[reference.name][0], mode=mode, isolate=executor.isolate,
-                         max_seconds=max_seconds, progress=progress and not executor.parallel)
+                         max_seconds=max_seconds, progress=progress and not executor.parallel,
+                         record_dir=None if record is None else Path(record).resolve())
              for reference, spec in planned]
     coverage = CoverageCache()
     say = tqdm_write if executor.parallel else None
