@@ -6,6 +6,9 @@
 #   make bench BENCH_ARGS="--skip ial_localizer:fr101"   options of rls_bench (see .venv/bin/rls_bench --help)
 #   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
 #   make bench-campus                     IR and PIL on the Freiburg campus (its bag is made on demand)
+#   make bench-paper                      PIL, IR and IAL as their papers describe them (config/*_paper.yaml)
+#   make bench BENCH_WORKERS=2            runs side by side (Dask workers): faster, but the update times then
+#                                         share the cores and differ from the published tables (1: one at a time)
 #   make soak SOAK_ARGS="--speed 10"      options of rls_soak (see .venv/bin/rls_soak --help)
 PYTHON ?= python3
 VENV := .venv
@@ -18,6 +21,7 @@ DEMO_ARGS ?=
 PYTEST_ARGS ?=
 BENCH_MAX_SECONDS ?= 300
 BENCH_ARGS ?=
+BENCH_WORKERS ?= 1
 SOAK_MINUTES ?= 30
 SOAK_ARGS ?=
 # Real logs for the cross-validation runs; their 5-block splits are made once, when missing.
@@ -30,7 +34,7 @@ CV_LOG_FILE_orebro := orebro-corrected.log.gz
 CV_INDEXES := $(foreach log,$(CV_LOGS),$(CV_SPLITS)/$(log)_cv.yaml)
 HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 
-.PHONY: setup demo test bench bench-cv bench-campus soak lint clean
+.PHONY: setup demo test bench bench-cv bench-campus bench-paper soak lint clean
 
 # Reinstalled whenever the package metadata changes.
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
@@ -66,7 +70,14 @@ test: $(STAMP) $(INTERFACES)
 bench: $(STAMP) $(INTERFACES) $(if $(HAVE_CARMEN),$(CV_INDEXES))
 	@$(if $(HAVE_CARMEN),true,echo "bench: $(CARMEN_DIR) is absent: skipping the cross-validation runs (honest maps)")
 	$(PY) -m robot_localization_suite.tools.bench --all --with-tracking --with-global-fixes --out results \
-		--max-seconds $(BENCH_MAX_SECONDS) $(if $(HAVE_CARMEN),--cv $(CV_INDEXES)) $(BENCH_ARGS)
+		--max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) $(if $(HAVE_CARMEN),--cv $(CV_INDEXES)) \
+		$(BENCH_ARGS)
+
+# The methods with a paper profile, as published, on every bag: results/paper/summary.md beside results/summary.md.
+bench-paper: $(STAMP) $(INTERFACES)
+	$(PY) -m robot_localization_suite.tools.bench --all --localizers pil_localizer ir_initializer ial_localizer \
+		--profile paper --out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
+		$(BENCH_ARGS)
 
 # Only the cross-validation runs: results/cv/summary.md.
 ifeq ($(HAVE_CARMEN),)
