@@ -221,8 +221,8 @@ class HybridLocalizer:
         The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the estimate,
         ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
         steady one of a look-alike place once the scans start to differ, and a candidate that does worse than
-        the estimate takes evidence away. While LOCALIZED the advantage must also have held for ``better_updates``
-        updates in a row.
+        the estimate takes evidence away. Unless the filter is LOST or INITIALIZING the advantage must also have held
+        for ``better_updates`` updates in a row.
         """
         s = self.settings
         last = self.mcl.last_estimate
@@ -245,9 +245,9 @@ class HybridLocalizer:
         self._evidence = max(0.0, self._evidence + step)
         self._better_count = self._better_count + 1 if step > 0.0 else 0
         notes: dict[str, Any] = {"best_outside_log_odds": round(step, 3), "switch_evidence": round(self._evidence, 3)}
-        # A filter whose own fit holds (LOCALIZED) is contradicted only by evidence over better_updates updates;
-        # one that has lost its fit (or never converged) has nothing to protect.
-        needed = s.better_updates if last.status is LocalizerStatus.LOCALIZED else 1
+        # A filter whose own fit holds (LOCALIZED) or that weighs rival places (AMBIGUOUS) is contradicted only by
+        # evidence over better_updates updates; one that has lost its fit (or never converged) has nothing to protect.
+        needed = 1 if last.status in (LocalizerStatus.LOST, LocalizerStatus.INITIALIZING) else s.better_updates
         if self._evidence < s.better_log_odds or self._better_count < needed:
             return notes
         # around each candidate ahead of the estimate in proportion to its likelihood for this scan (the share a

@@ -64,8 +64,8 @@ class HybridSettings(Settings):
         "one's log-odds over the estimate (scan log-likelihoods counted over mcl.effective_beams, as the filter "
         "weighs particles) reaches this", low=0.0, low_open=True, high=1e6)
     better_updates: int = setting(
-        2, "while LOCALIZED, the candidate must also have been ahead of the estimate at this many consecutive "
-        "updates", low=1, high=1000)
+        2, "unless the filter is LOST or INITIALIZING, the candidate must also have been ahead of the estimate at "
+        "this many consecutive updates", low=1, high=1000)
     support_distance: float = setting(
         0.5, "a candidate is inside the filter's support when particles within this distance ...", unit="m",
         low=0.0, low_open=True, high=100.0)
