@@ -30,7 +30,7 @@ def test_repair_writes_a_sound_bag_with_every_recovered_message(tmp_path: Path, 
     out = tmp_path / "out" / "repaired"
     assert bag_repair.main([str(damaged), str(out)]) == 0
     line = capsys.readouterr().out.strip()
-    assert line.startswith(f"rls_bag_repair: wrote {len(recovered)} messages (/map 1, /odom ")
+    assert line.startswith(f"rls_bag_repair: wrote {len(recovered)} messages (/map 1, /tf_static 1, /odom ")
     assert "the file ends inside the chunk record" in line and "\n" not in line
     # A sound bag: rosbags reads it without recovery, with its footer and summary, and the same messages.
     reading = read_bag(out)

@@ -353,10 +353,15 @@ def test_committed_bags_match_their_scenarios(name: str) -> None:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts == {
         "/map": 1,
+        "/tf_static": 1,
         "/odom": scenario.step_count,
+        "/tf": scenario.step_count,
         "/ground_truth": scenario.step_count,
         "/scan": scenario.step_count,
     }
+    # recorded from the simulated epoch, not from 1970 (issue 18)
+    (first,) = read_bag(bag, ["/map"])
+    assert first.stamp_ns == ScanSimSettings().record_epoch * 1_000_000_000
     # The first seconds are exactly what the simulator produces now.
     simulator = Simulator(scenario)
     scans = (m for m in read_bag(bag, ["/scan"]))
@@ -494,10 +499,11 @@ def test_the_committed_map_change_bag_matches_its_scenario() -> None:
                       "/operator/reinitialize_global_localization": 1}
     change, request = scenario.map_changes[0], scenario.reinitializations[0]
     maps = [m for m in read_bag(bag, ["/map"])]
-    assert [m.stamp_ns for m in maps] == [0, scenario.event_step(change.time) * 100_000_000]
+    epoch_ns = ScanSimSettings().record_epoch * 1_000_000_000
+    assert [m.stamp_ns - epoch_ns for m in maps] == [0, scenario.event_step(change.time) * 100_000_000]
     assert np.array_equal(np.asarray(maps[1].msg.data, dtype=np.int8).reshape(400, 400), change.grid_map.data)
     (item,) = read_bag(bag, ["/operator/reinitialize_global_localization"])
-    assert item.stamp_ns == scenario.event_step(request.time) * 100_000_000
+    assert item.stamp_ns - epoch_ns == scenario.event_step(request.time) * 100_000_000
     simulator = Simulator(scenario)
     for message, step in zip(read_bag(bag, ["/scan"]), simulator.run(), strict=True):
         assert np.array_equal(np.asarray(message.msg.ranges, dtype=np.float32), step.ranges)
