@@ -28,6 +28,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, LaserScan
 from std_srvs.srv import Empty
 
+from ..core.cache import log_kernel_compilations
 from ..core.errors import LocalizationSuiteError, SettingsError
 from ..core.grid_map import load_map_yaml
 from ..core.scan import LaserMount
@@ -109,6 +110,7 @@ class LocalizerNode(LifecycleNode):
         self._log_handler = _RosLogHandler(self._log)
         _PACKAGE_LOGGER.addHandler(self._log_handler)
         _PACKAGE_LOGGER.setLevel(logging.INFO)
+        log_kernel_compilations()  # a cold cache says what it compiles during configure
         self.throttled = ThrottledLog(self._log)
         self._classes: tuple[type[Settings], ...] = (NodeSettings, plugin.settings)
         self.unused_parameters = declare_settings(self, *self._classes)
