@@ -83,6 +83,10 @@ class _RosLogHandler(logging.Handler):
         self._sink = sink
 
     def emit(self, record: logging.LogRecord) -> None:
+        # Several nodes in one process (a container) each have a handler: one of them shows the record.
+        if getattr(record, "rls_shown", False):
+            return
+        record.rls_shown = True
         level = "error" if record.levelno >= logging.ERROR else "warn" if record.levelno >= logging.WARNING else "info"
         self._sink(level, record.getMessage())
 
@@ -94,16 +98,19 @@ class LocalizerNode(LifecycleNode):
         plugin: what the node runs (its settings declare the node's parameters).
         extras: topic suffix -> :class:`~robot_localization_suite.ros.extras.Extra` of method-specific outputs.
         node_name: default node name (``-r __node:=...`` still renames it); default: the plugin's name.
+        node_options: for rclpy's ``Node`` (a container passes each node its own ``cli_args``).
 
     Raises:
         SettingsError: a parameter override of the wrong type or out of range, naming it.
     """
 
     def __init__(
-        self, plugin: LocalizerPlugin, *, extras: Mapping[str, Extra] | None = None, node_name: str | None = None
+        self, plugin: LocalizerPlugin, *, extras: Mapping[str, Extra] | None = None, node_name: str | None = None,
+        **node_options: Any,
     ) -> None:
         # Overrides are declared as they come so that those this node does not have can be listed.
-        super().__init__(node_name or plugin.name, automatically_declare_parameters_from_overrides=True)
+        super().__init__(node_name or plugin.name, automatically_declare_parameters_from_overrides=True,
+                         **node_options)
         self.plugin = plugin
         self.extras = dict(extras or {})
         # Before anything that may log: the core reports through Python logging (a corrupt cache, a relearning).
