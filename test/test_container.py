@@ -63,8 +63,12 @@ class LockstepReplay:
         return record
 
     def play(self, messages: list[Any]) -> None:
-        ready = lambda: all(self.probe.node.count_subscribers(t) >= len(self.names) for t in ("/odom", "/scan"))  # noqa: E731
+        # Matched by the writers themselves (the graph can list a reader before its writer has matched it:
+        # a first odometry lost that way would shift every later update).
+        publishers = (self.odom_pub, self.scan_pub)
+        ready = lambda: all(p.get_subscription_count() >= len(self.names) for p in publishers)  # noqa: E731
         assert self.probe.spin_until(ready, 60.0), "the localizers never subscribed"
+        self.probe.spin_for(1.0)
         for message in messages:
             if message.topic == "/odom":
                 self.odom_pub.publish(message.msg)
