@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 import threading
 import traceback
@@ -54,6 +55,10 @@ class ContainerExecutor(MultiThreadedExecutor):
         super().__init__(num_threads=num_threads, **kwargs)
         self._on_failure = on_failure
         self._owners: dict[Any, Node] = {}
+
+    def busy(self) -> bool:
+        """Whether a callback handed to a worker thread has not finished."""
+        return any(not future.done() for future in self._futures)
 
     def _spin_once_impl(self, timeout_sec: Any = None, wait_condition: Callable[[], bool] = lambda: False) -> None:
         try:
@@ -188,9 +193,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if rclpy.ok():
             raise
     finally:
+        code = 1 if container.failed else 0
+        if container.executor.busy():
+            # A callback still running (a kernel compiling, an update of seconds) would hold the process
+            # until it ends (destroying its node waits for it, the worker threads are joined at exit).
+            container.log("a callback is still running: exiting without waiting for it")
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(code)
         container.close()
         rclpy.try_shutdown()
-    return 1 if container.failed else 0
+    return code
 
 
 if __name__ == "__main__":
