@@ -7,6 +7,7 @@
 #   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
 #   make bench-campus                     IR and PIL on the Freiburg campus (its bag is made on demand)
 #   make soak SOAK_ARGS="--speed 10"      options of rls_soak (see .venv/bin/rls_soak --help)
+#   make footprint FOOTPRINT_ARGS="--no-cold"   options of rls_footprint (see .venv/bin/rls_footprint --help)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -20,6 +21,7 @@ BENCH_MAX_SECONDS ?= 300
 BENCH_ARGS ?=
 SOAK_MINUTES ?= 30
 SOAK_ARGS ?=
+FOOTPRINT_ARGS ?=
 # Real logs for the cross-validation runs; their 5-block splits are made once, when missing.
 CARMEN_DIR ?= ../shared/data/carmen
 CV_SPLITS ?= results/cv_splits
@@ -30,7 +32,7 @@ CV_LOG_FILE_orebro := orebro-corrected.log.gz
 CV_INDEXES := $(foreach log,$(CV_LOGS),$(CV_SPLITS)/$(log)_cv.yaml)
 HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 
-.PHONY: setup demo test bench bench-cv bench-campus soak lint clean
+.PHONY: setup demo test bench bench-cv bench-campus soak footprint lint clean
 
 # Reinstalled whenever the package metadata changes.
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
@@ -103,6 +105,12 @@ $(CAMPUS_BAG)/metadata.yaml: | $(STAMP)
 # RSS and CPU every 10 s, pose latency and dropped scans, into results/soak/ (soak.md, soak.json, soak.png).
 soak: $(STAMP) $(INTERFACES)
 	$(PY) -m robot_localization_suite.tools.soak --minutes $(SOAK_MINUTES) --out results/soak $(SOAK_ARGS)
+
+# Memory, CPU and start-up of each localizer alone and of all composed (docs/footprint.md): idle RSS after
+# configure, RSS and CPU replaying bags/office_kidnap at real time, start-up with a cold and a warm cache,
+# into results/footprint/ (footprint.md, footprint.json). A measurement, not a test.
+footprint: $(STAMP) $(INTERFACES)
+	$(PY) -m robot_localization_suite.tools.footprint --out results/footprint $(FOOTPRINT_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robot_localization_suite test
