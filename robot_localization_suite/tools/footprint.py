@@ -143,8 +143,9 @@ class _Run:
         finally:
             manager.close()
 
-    def replay(self, messages: list[Any], seconds: float, warmup_s: float) -> dict[str, Any]:
-        """Play ``messages`` at real time for ``seconds``; RSS and CPU of the node processes."""
+    def replay(self, messages: list[Any], seconds: float, warmup_s: float, until_posed: bool = False) -> dict[str, Any]:
+        """Play ``messages`` at real time for ``seconds`` (or until every node has published a pose, with
+        ``until_posed``); RSS and CPU of the node processes."""
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import LaserScan
@@ -185,7 +186,8 @@ class _Run:
         try:
             for message in messages:
                 due = (message.stamp_ns - t0) * 1e-9
-                if due > seconds:
+                if due > seconds or (until_posed and all(v is not None for v in first_pose.values())):
+                    seconds = min(seconds, due)
                     break
                 delay = began[0] + due - time.monotonic()
                 if delay > 0:
@@ -208,6 +210,8 @@ class _Run:
             spinning.set()
             spinner.join(timeout=5.0)
             player.close()
+        if cpu_start is None and until_posed:
+            return {"first_pose_s": first_pose}
         if cpu_start is None:
             raise ValueError(f"the warm-up ({warmup_s:g} s) is not shorter than the replay ({seconds:g} s)")
         rss_peak = cpu_s = 0.0
@@ -232,7 +236,7 @@ class _Run:
 
 def measure(configuration: str, names: Sequence[str], *, container: str | None, bag: Path, map_yaml: Path,
             seconds: float, warmup_s: float, cold: bool, domain_id: int, log: Any = print,
-            timeout_s: float = 900.0, cold_replay_s: float = 20.0, node_log: Path | None = None) -> Footprint:
+            timeout_s: float = 900.0, cold_replay_s: float = 150.0, node_log: Path | None = None) -> Footprint:
     """One configuration: a cold start (if ``cold``), then a warm start with idle RSS and the replay."""
     from ..registry import config_dir
     from ..ros.bag import read_bag
@@ -252,8 +256,9 @@ def measure(configuration: str, names: Sequence[str], *, container: str | None, 
             run.node_log = node_log
             try:
                 cold_ready = run.bring_up(timeout_s)[0]
-                # What is compiled or built at the first scan (IAL's kernels, PIL's and IR's precomputation).
-                cold_first_pose = run.replay(feed, min(seconds, cold_replay_s), min(warmup_s, 1.0))["first_pose_s"]
+                # What is compiled or built at the first scan (IAL's kernels, PIL's and IR's precomputation),
+                # until every node has a pose: the warm run then finds all of it in the cache.
+                cold_first_pose = run.replay(feed, cold_replay_s, min(warmup_s, 1.0), until_posed=True)["first_pose_s"]
             finally:
                 run.stop()
             log(f"{configuration}: cold start-up to ready {cold_ready:.2f} s, first poses {cold_first_pose}")
