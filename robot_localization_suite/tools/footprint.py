@@ -246,7 +246,10 @@ def measure(configuration: str, names: Sequence[str], *, container: str | None, 
     start = odometry_from_msg(next(m.msg for m in messages if m.topic == "/ground_truth"))[1]
     feed = [m for m in messages if m.topic in ("/odom", "/scan")]
     specs = _specs(names, map_yaml, start, container, config_dir())
-    cache_dir = Path(tempfile.mkdtemp(prefix="rls_footprint_cache_"))
+    from ..core.cache import default_cache_dir
+
+    # Cold: an empty cache of the run's own. Without the cold run, the user's cache (warm if used before).
+    cache_dir = Path(tempfile.mkdtemp(prefix="rls_footprint_cache_")) if cold else default_cache_dir()
     load = [os.getloadavg()[0]]
     cold_ready: float | None = None
     cold_first_pose: dict[str, float | None] = {name: None for name in names}
@@ -274,7 +277,8 @@ def measure(configuration: str, names: Sequence[str], *, container: str | None, 
         finally:
             run.stop()
     finally:
-        shutil.rmtree(cache_dir, ignore_errors=True)
+        if cold:
+            shutil.rmtree(cache_dir, ignore_errors=True)
     result = Footprint(configuration, list(names), cold_ready, warm_ready, warm_ready_dds, idle_rss, idle_uss, load=load,
                        cold_first_pose_s=cold_first_pose, **replay)
     log(f"{configuration}: replay peak RSS {result.replay_peak_rss_mb:.0f} MB, CPU {result.cpu_percent:.1f} % "
@@ -319,7 +323,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=24.0,
                         help="seconds of the bag played (24: office_kidnap before its kidnapping)")
     parser.add_argument("--warmup", type=float, default=4.0, help="seconds of the replay left out of the CPU figures")
-    parser.add_argument("--no-cold", action="store_true", help="skip the cold-cache start-ups")
+    parser.add_argument("--no-cold", action="store_true",
+                        help="skip the cold-cache start-ups: the warm runs then use $RLS_CACHE_DIR (warm if used before)")
     parser.add_argument("--no-alone", action="store_true", help="only the composed configuration")
     parser.add_argument("--no-composed", action="store_true", help="only each localizer alone")
     parser.add_argument("--out", default="results/footprint",
