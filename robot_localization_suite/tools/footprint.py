@@ -60,6 +60,7 @@ class Footprint:
     cpu_ms_per_scan: float | None  # CPU time over the replay after the warm-up / scans published then [ms]
     first_pose_s: dict[str, float | None]  # replay start -> first ~/pose of each node, warm [s]
     cold_first_pose_s: dict[str, float | None]  # the same on the cold run (kernels compiled at first use) [s]
+    compiled_while_replaying: int  # kernels compiled during the warm replay (0 when the cache was warm)
     load: list[float]  # 1-minute load average before the cold run, before the replay, after it
 
 
@@ -143,9 +144,10 @@ class _Run:
         finally:
             manager.close()
 
-    def replay(self, messages: list[Any], seconds: float, warmup_s: float, until_posed: bool = False) -> dict[str, Any]:
-        """Play ``messages`` at real time for ``seconds`` (or until every node has published a pose, with
-        ``until_posed``); RSS and CPU of the node processes."""
+    def replay(self, messages: list[Any], seconds: float, warmup_s: float, until_posed: bool = False,
+               until_posed_after_s: float = 0.0) -> dict[str, Any]:
+        """Play ``messages`` at real time for ``seconds`` (with ``until_posed``: only until every node has
+        published a pose and ``until_posed_after_s`` have been played); RSS and CPU of the node processes."""
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
         from sensor_msgs.msg import LaserScan
@@ -186,7 +188,8 @@ class _Run:
         try:
             for message in messages:
                 due = (message.stamp_ns - t0) * 1e-9
-                if due > seconds or (until_posed and all(v is not None for v in first_pose.values())):
+                posed = all(v is not None for v in first_pose.values())
+                if due > seconds or (until_posed and posed and due > until_posed_after_s):
                     seconds = min(seconds, due)
                     break
                 delay = began[0] + due - time.monotonic()
@@ -260,8 +263,10 @@ def measure(configuration: str, names: Sequence[str], *, container: str | None, 
             try:
                 cold_ready = run.bring_up(timeout_s)[0]
                 # What is compiled or built at the first scan (IAL's kernels, PIL's and IR's precomputation),
-                # until every node has a pose: the warm run then finds all of it in the cache.
-                cold_first_pose = run.replay(feed, cold_replay_s, min(warmup_s, 1.0), until_posed=True)["first_pose_s"]
+                # until every node has a pose and the warm run's stretch has been played: the warm run then
+                # finds all of it in the cache (kernels compile at their first use, some scans in).
+                cold_first_pose = run.replay(feed, cold_replay_s, min(warmup_s, 1.0), until_posed=True,
+                                             until_posed_after_s=seconds)["first_pose_s"]
             finally:
                 run.stop()
             log(f"{configuration}: cold start-up to ready {cold_ready:.2f} s, first poses {cold_first_pose}")
@@ -272,15 +277,20 @@ def measure(configuration: str, names: Sequence[str], *, container: str | None, 
             log(f"{configuration}: warm start-up to ready {warm_ready:.2f} s ({warm_ready_dds:.2f} s over DDS), "
                 f"idle RSS {idle_rss:.0f} MB (USS {idle_uss:.0f} MB)")
             load.append(os.getloadavg()[0])
+            replay_start = len(run.timed)
             replay = run.replay(feed, seconds, warmup_s)
             load.append(os.getloadavg()[0])
+            compiled = [line for _, line in run.timed[replay_start:] if "]: compiling " in line]
+            if compiled:
+                log(f"{configuration}: {len(compiled)} kernel(s) compiled during the warm replay: its CPU figures "
+                    f"include compilation")
         finally:
             run.stop()
     finally:
         if cold:
             shutil.rmtree(cache_dir, ignore_errors=True)
     result = Footprint(configuration, list(names), cold_ready, warm_ready, warm_ready_dds, idle_rss, idle_uss, load=load,
-                       cold_first_pose_s=cold_first_pose, **replay)
+                       cold_first_pose_s=cold_first_pose, compiled_while_replaying=len(compiled), **replay)
     log(f"{configuration}: replay peak RSS {result.replay_peak_rss_mb:.0f} MB, CPU {result.cpu_percent:.1f} % "
         f"({result.cpu_ms_per_scan:.1f} ms per scan), load {', '.join(f'{x:.1f}' for x in load)}")
     return result
