@@ -10,6 +10,7 @@
 #   make bench BENCH_WORKERS=2            runs side by side (Dask workers): faster, but the update times then
 #                                         share the cores and differ from the published tables (1: one at a time)
 #   make soak SOAK_ARGS="--speed 10"      options of rls_soak (see .venv/bin/rls_soak --help)
+#   make footprint FOOTPRINT_ARGS="--no-cold"   options of rls_footprint (see .venv/bin/rls_footprint --help)
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -24,6 +25,7 @@ BENCH_ARGS ?=
 BENCH_WORKERS ?= 1
 SOAK_MINUTES ?= 30
 SOAK_ARGS ?=
+FOOTPRINT_ARGS ?=
 # Real logs for the cross-validation runs; their 5-block splits are made once, when missing.
 CARMEN_DIR ?= ../shared/data/carmen
 CV_SPLITS ?= results/cv_splits
@@ -34,7 +36,7 @@ CV_LOG_FILE_orebro := orebro-corrected.log.gz
 CV_INDEXES := $(foreach log,$(CV_LOGS),$(CV_SPLITS)/$(log)_cv.yaml)
 HAVE_CARMEN := $(wildcard $(CARMEN_DIR))
 
-.PHONY: setup demo test bench bench-cv bench-campus bench-paper soak lint clean
+.PHONY: setup demo test bench bench-cv bench-campus bench-paper soak footprint lint clean
 
 # Reinstalled whenever the package metadata changes.
 $(STAMP): setup.py setup.cfg package.xml pyproject.toml
@@ -114,6 +116,12 @@ $(CAMPUS_BAG)/metadata.yaml: | $(STAMP)
 # RSS and CPU every 10 s, pose latency and dropped scans, into results/soak/ (soak.md, soak.json, soak.png).
 soak: $(STAMP) $(INTERFACES)
 	$(PY) -m robot_localization_suite.tools.soak --minutes $(SOAK_MINUTES) --out results/soak $(SOAK_ARGS)
+
+# Memory, CPU and start-up of each localizer alone and of all composed (docs/footprint.md): idle RSS after
+# configure, RSS and CPU replaying bags/office_kidnap at real time, start-up with a cold and a warm cache,
+# into results/footprint/ (footprint.md, footprint.json). A measurement, not a test.
+footprint: $(STAMP) $(INTERFACES)
+	$(PY) -m robot_localization_suite.tools.footprint --out results/footprint $(FOOTPRINT_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check robot_localization_suite test

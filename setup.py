@@ -114,6 +114,7 @@ setup(
             "rls_demo = robot_localization_suite.launch.demo:main",
             "rls_bench = robot_localization_suite.tools.bench:main",
             "rls_soak = robot_localization_suite.tools.soak:main",
+            "rls_footprint = robot_localization_suite.tools.footprint:main",
             "rls_bag_repair = robot_localization_suite.tools.bag_repair:main",
             "carmen_to_bag = robot_localization_suite.tools.carmen_to_bag:main",
             "build_topomap = robot_localization_suite.tools.build_topomap:main",

@@ -105,3 +105,57 @@ def test_numba_kernels_are_cached_under_the_cache_directory_not_in_the_tree(tmp_
     assert list((tmp_path / "numba").rglob("*.nbi")), "no numba index under the cache directory"
     after = {p: p.stat().st_mtime for p in PACKAGE.rglob("*.nbi")}
     assert after == before, "numba wrote into the source tree"
+
+
+_LOADED = ("import sys, importlib; importlib.import_module(sys.argv[1]); "
+           "print(sorted(m for m in ('cv2', 'matplotlib', 'robot_localization_suite.tools') if m in sys.modules))")
+
+
+def test_a_node_module_loads_opencv_only_for_a_camera_method_and_never_plotting_or_the_benchmark() -> None:
+    from robot_localization_suite.registry import PLUGINS
+
+    for name, plugin in PLUGINS.items():
+        result = subprocess.run([sys.executable, "-c", _LOADED, f"robot_localization_suite.nodes.{name}"],
+                                capture_output=True, text=True, timeout=120, cwd=ROOT)
+        assert result.returncode == 0, result.stderr[-2000:]
+        loaded = eval(result.stdout.strip())  # noqa: S307 - a list literal printed by the child
+        assert "matplotlib" not in loaded and "robot_localization_suite.tools" not in loaded, (name, loaded)
+        if not plugin.uses_camera:
+            assert "cv2" not in loaded, f"importing the {name} node loads OpenCV"
+
+
+_LASER_SETUP = """
+import sys
+from robot_localization_suite.core.grid_map import load_map_yaml
+from robot_localization_suite.registry import PLUGINS
+for plugin in PLUGINS.values():
+    if not plugin.uses_camera:
+        plugin.create(plugin.load_settings()[1]).set_map(load_map_yaml('config/maps/office.yaml'))
+print('cv2' in sys.modules)
+"""
+
+
+def test_no_laser_method_loads_opencv_to_set_up_a_map() -> None:
+    """Map image, distance field, clearance codes, IAL's erosion: what configure does, without OpenCV."""
+    result = subprocess.run([sys.executable, "-c", _LASER_SETUP], capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.split()[-1] == "False"
+
+
+_COMPILE = ("import logging, numpy as np; logging.basicConfig(level=logging.INFO); "
+            "from robot_localization_suite.core.cache import log_kernel_compilations; log_kernel_compilations(); "
+            "from robot_localization_suite.core.edt import distance_to_marked; "
+            "print(distance_to_marked(np.eye(3, dtype=bool))[0, 1])")
+
+
+def test_a_cold_kernel_cache_says_what_it_compiles_and_a_warm_one_does_not(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["RLS_CACHE_DIR"] = str(tmp_path)
+    runs = [subprocess.run([sys.executable, "-c", _COMPILE], capture_output=True, text=True, timeout=300, cwd=ROOT,
+                           env=env) for _ in range(2)]
+    for run in runs:
+        assert run.returncode == 0, run.stderr[-2000:]
+        assert float(run.stdout.split()[-1]) == 1.0
+    assert "compiling core.edt._squared_distances" in runs[0].stderr
+    assert "compiled core.edt._squared_distances in" in runs[0].stderr
+    assert "compiling" not in runs[1].stderr

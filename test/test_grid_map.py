@@ -288,3 +288,36 @@ def test_a_map_reaching_beyond_a_thousand_kilometres_is_refused() -> None:
     for origin, resolution in (((6.6e16, 0.0), 0.05), ((0.0, -2e6), 0.05), ((0.0, 0.0), 3.4e38)):
         with pytest.raises(MapError, match="reaches more than 1e\\+06 m from the origin"):
             GridMap(np.zeros((10, 10), np.int8), resolution, origin)
+
+
+def test_the_distance_transform_equals_opencvs_exact_one() -> None:
+    """core/edt.py replaces cv2.distanceTransform(DIST_L2, DIST_MASK_PRECISE): same distances."""
+    from robot_localization_suite.core.edt import distance_to_marked
+
+    rng = np.random.default_rng(7)
+    for shape, density in [((1, 1), 1.0), ((1, 9), 0.3), ((11, 1), 0.3), ((40, 70), 0.01), ((120, 90), 0.002),
+                           ((33, 33), 0.6)]:
+        marked = rng.random(shape) < density
+        marked.flat[rng.integers(marked.size)] = True
+        expected = cv2.distanceTransform(np.where(marked, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        ours = distance_to_marked(marked)
+        assert ours.dtype == np.float32 and ours.shape == shape
+        np.testing.assert_allclose(ours, expected, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("pixels", [IMAGE, np.array([[0, 65535, 1000], [300, 7, 40000]], dtype=np.uint16)])
+def test_binary_pgm_is_read_as_opencv_reads_it(tmp_path: Path, pixels: np.ndarray) -> None:
+    from robot_localization_suite.core.grid_map import _read_binary_pgm
+
+    path = tmp_path / "image.pgm"
+    assert cv2.imwrite(str(path), pixels)
+    ours = _read_binary_pgm(path)
+    assert ours is not None and ours.dtype == pixels.dtype
+    np.testing.assert_array_equal(ours, cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
+    # A comment in the header, as GIMP writes one, and a file cut short.
+    path.write_bytes(b"P5\n# made by hand\n2 1\n255\n\x00\xfe")
+    np.testing.assert_array_equal(_read_binary_pgm(path), [[0, 254]])
+    path.write_bytes(b"P5\n2 2\n255\n\x00\xfe")
+    assert _read_binary_pgm(path) is None
+    path.write_bytes(b"P2\n2 1\n255\n0 254\n")
+    assert _read_binary_pgm(path) is None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -273,5 +274,51 @@ def test_slow_work_runs_off_the_executor_with_progress_in_the_diagnostics() -> N
         assert np.allclose(particles[:, :2].mean(axis=0), [2.5, 5.0], atol=0.05)
     finally:
         release.set()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_the_candidates_and_the_cloud_are_built_only_for_a_subscriber(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Building thousands of poses in Python costs more than the update: not done for nobody."""
+    rclpy = pytest.importorskip("rclpy")
+    from geometry_msgs.msg import PoseArray
+
+    from robot_localization_suite.nodes import localizer_node
+    from robot_localization_suite.ros.qos import RELIABLE_QOS, SENSOR_QOS
+
+    office = office_map()
+    run = drive(office, steps=60, seed=3)
+    built: list[int] = []
+    real = localizer_node.nav2.estimate_to_particle_cloud
+    monkeypatch.setattr(localizer_node.nav2, "estimate_to_particle_cloud",
+                        lambda *args: built.append(1) or real(*args))
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=1000", "-p", "min_particles:=1000"])
+    node = localizer_node.LocalizerNode(registry.plugin("mcl_baseline"))
+    listener = rclpy.create_node("candidates_listener")
+    try:
+        node.trigger_configure()
+        node.trigger_activate()
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
+        node.adapter.on_initial_pose_msg(
+            conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2, 0.05**2, 0.05**2])))
+
+        def feed(steps: range) -> None:
+            for k in steps:
+                node.adapter.on_odom_msg(conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom"))
+                node._on_scan(_scan_msg(run.scans[k]))
+
+        feed(range(0, 30))
+        assert node.last_pose is not None and built == []
+        assert node.candidates_pub.get_subscription_count() == 0
+        listener.create_subscription(PoseArray, "/mcl_baseline/candidates", lambda _msg: None, RELIABLE_QOS)
+        listener.create_subscription(localizer_node.nav2.ParticleCloud, "/mcl_baseline/particle_cloud",
+                                     lambda _msg: None, SENSOR_QOS)
+        deadline = time.monotonic() + 10.0
+        while node.cloud_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        feed(range(30, 60))
+        assert built, "a subscriber gets the particle cloud"
+    finally:
+        listener.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown()

@@ -10,6 +10,9 @@ is never deleted, and only names matching the given pattern are considered.
 :func:`load_cached` reads a cache file: a corrupt one (any error reading it) is
 reported by one warning naming it, then rebuilt by the caller.
 
+:func:`log_kernel_compilations` makes a cold start say which compiled kernel it is compiling (numba
+keeps them in ``numba/`` of the same directory; a warm start loads them and says nothing).
+
 Notes (why modification time, per-directory budgets, concurrent writers): docs/ir.md, "Cache".
 """
 
@@ -19,6 +22,8 @@ import logging
 import math
 import os
 import struct
+import threading
+import time
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +40,7 @@ __all__ = [
     "cache_budget_bytes",
     "default_cache_dir",
     "load_cached",
+    "log_kernel_compilations",
     "mark_used",
     "npz_member_memmap",
     "prune_cache",
@@ -205,3 +211,46 @@ def npz_member_memmap(path: Path, name: str) -> NDArray[Any] | None:
             raise ValueError(f"member {name!r} holds Python objects")
         offset = stream.tell()
     return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape, order="F" if fortran else "C")
+
+
+_compile_listener_lock = threading.Lock()
+_compile_listener_installed = False
+
+
+def log_kernel_compilations() -> None:
+    """From now on, log at INFO each numba kernel compiled because the cache lacks it, and how long it took.
+
+    Only the outermost compilation of a kernel is reported (not the helpers it inlines). Loads numba.
+    Idempotent: a process (several nodes in one container) installs it once.
+    """
+    global _compile_listener_installed
+    with _compile_listener_lock:
+        if _compile_listener_installed:
+            return
+        from numba.core import event
+
+        depth = threading.local()
+
+        class _Listener(event.Listener):
+            def on_start(self, ev: Any) -> None:
+                depth.value = getattr(depth, "value", 0) + 1
+                if depth.value == 1:
+                    depth.started = time.perf_counter()
+                    _LOG.info("compiling %s (not in the kernel cache %s yet)", _kernel_name(ev), _numba_cache_dir())
+
+            def on_end(self, ev: Any) -> None:
+                depth.value -= 1
+                if depth.value == 0:
+                    _LOG.info("compiled %s in %.1f s", _kernel_name(ev), time.perf_counter() - depth.started)
+
+        event.register("numba:compile", _Listener())
+        _compile_listener_installed = True
+
+
+def _kernel_name(ev: Any) -> str:
+    function = ev.data["dispatcher"].py_func
+    return f"{function.__module__.removeprefix('robot_localization_suite.')}.{function.__qualname__}"
+
+
+def _numba_cache_dir() -> str:
+    return os.environ.get("NUMBA_CACHE_DIR", "") or str(default_cache_dir() / "numba")

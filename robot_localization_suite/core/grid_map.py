@@ -22,11 +22,11 @@ farther than ``MAX_COORDINATE_M`` from the origin of its frame.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
@@ -137,11 +137,13 @@ class GridMap:
         """
         key = "open_unknown"
         if key not in self._cache:
-            unknown = self.unknown_mask.astype(np.uint8)
-            count, labels = cv2.connectedComponents(unknown, connectivity=4)
-            cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
-            next_to_free = cv2.dilate(self.free_mask.astype(np.uint8), cross).astype(bool) & (unknown > 0)
-            open_labels = np.zeros(count, dtype=bool)
+            from scipy import ndimage
+
+            unknown = self.unknown_mask
+            cross = ndimage.generate_binary_structure(2, 1)
+            labels, count = ndimage.label(unknown, structure=cross)
+            next_to_free = ndimage.binary_dilation(self.free_mask, structure=cross) & unknown
+            open_labels = np.zeros(count + 1, dtype=bool)
             open_labels[np.unique(labels[next_to_free])] = True
             open_labels[0] = False  # label 0: the known cells
             mask = open_labels[labels]
@@ -196,10 +198,10 @@ class GridMap:
             diagonal = float(np.hypot(self.width, self.height) * self.resolution)
             field_m = np.full(self.data.shape, diagonal, dtype=np.float32)
         else:
-            # distanceTransform measures the distance to the nearest zero pixel.
-            source = np.where(obstacles, np.uint8(0), np.uint8(255))
+            from .edt import distance_to_marked
+
+            field_m = distance_to_marked(obstacles)
             del obstacles
-            field_m = np.asarray(cv2.distanceTransform(source, cv2.DIST_L2, cv2.DIST_MASK_PRECISE), dtype=np.float32)
             field_m *= np.float32(self.resolution)
         if cache:
             self._cache[key] = field_m
@@ -269,6 +271,8 @@ class GridMap:
         image[self.free_mask] = _PGM_FREE
         image[self.occupied_mask] = _PGM_OCCUPIED
         yaml_path.parent.mkdir(parents=True, exist_ok=True)
+        import cv2
+
         if not cv2.imwrite(str(image_path), np.flipud(image)):
             raise MapError(f"could not write map image {str(image_path)!r}")
         meta = {
@@ -364,7 +368,11 @@ def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
     image_path = (path.parent / str(image_name)).resolve()
     if not image_path.is_file():
         raise MapError(f"map YAML {str(path)!r}: field 'image' names a missing file {str(image_path)!r}")
-    pixels = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    pixels = _read_binary_pgm(image_path)
+    if pixels is None:  # PNG, ASCII PGM, ...: OpenCV, loaded only for these
+        import cv2
+
+        pixels = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
     if pixels is None or pixels.size == 0:
         raise MapError(f"map image {str(image_path)!r} is corrupt or not an image")
     if pixels.ndim == 3:  # colour (and alpha) images: map_server averages the colour channels
@@ -386,3 +394,27 @@ def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
         occupied_threshold=100 if mode == "scale" else 65,
         free_threshold=0 if mode == "scale" else 19,
     )
+
+
+_PGM_HEADER = re.compile(rb"P5(?:\s|#[^\n]*\n)+(\d+)(?:\s|#[^\n]*\n)+(\d+)(?:\s|#[^\n]*\n)+(\d+)\s")
+
+
+def _read_binary_pgm(path: Path) -> NDArray[Any] | None:
+    """The pixels of a binary (P5) PGM, as ``cv2.imread(IMREAD_UNCHANGED)`` reads them; None for other files.
+
+    map_server's usual format is read without OpenCV, so that a laser node never loads it.
+    """
+    with open(path, "rb") as stream:
+        head = stream.read(512)
+        match = _PGM_HEADER.match(head)
+        if match is None:
+            return None
+        width, height, maxval = (int(group) for group in match.groups())
+        if not 0 < maxval < 65536:
+            return None
+        stream.seek(match.end())
+        dtype = np.dtype(np.uint8) if maxval < 256 else np.dtype(">u2")
+        pixels = np.fromfile(stream, dtype=dtype, count=width * height)
+    if pixels.size != width * height or width == 0 or height == 0:
+        return None  # cut short: OpenCV reports it as a corrupt image
+    return pixels.reshape(height, width).astype(dtype.newbyteorder("="), copy=False)

@@ -304,11 +304,11 @@ class RayCaster:
 # -- rays that say how they ended -------------------------------------------------------------------
 def _clearance(mask: NDArray[np.bool_], ceiling: float) -> NDArray[np.float32]:
     """Distance [cells] from each cell centre to the nearest centre outside ``mask`` or the map border, at most ``ceiling``."""
-    import cv2
+    from .edt import distance_to_marked
 
-    padded = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), dtype=np.uint8)
-    padded[1:-1, 1:-1] = mask  # distanceTransform measures the distance to the nearest zero pixel
-    field_cells = np.asarray(cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE), dtype=np.float32)[1:-1, 1:-1]
+    outside = np.ones((mask.shape[0] + 2, mask.shape[1] + 2), dtype=bool)
+    outside[1:-1, 1:-1] = ~mask  # the border ring stands for the space off the map
+    field_cells = distance_to_marked(outside)[1:-1, 1:-1]
     np.minimum(field_cells, ceiling, out=field_cells)
     return field_cells
 

@@ -65,8 +65,9 @@ def resolve_scenario(value: str) -> Path:
     raise RunError(f"scenario {value!r} is neither a file nor a name in {config_dir() / 'scenarios'}")
 
 
-def build_specs(scenario_path: Path, map_yaml: Path, localizers: Sequence[str], speed: float) -> list[NodeSpec]:
-    """scan_sim on the scenario, and each localizer with its config file and the scenario's map."""
+def build_specs(scenario_path: Path, map_yaml: Path, localizers: Sequence[str], speed: float,
+                container: str | None = None) -> list[NodeSpec]:
+    """scan_sim on the scenario, and each localizer with its config file and the scenario's map (in ``container``)."""
     sim_params = config_dir() / "scan_sim.yaml"
     specs = [
         NodeSpec(
@@ -84,6 +85,7 @@ def build_specs(scenario_path: Path, map_yaml: Path, localizers: Sequence[str], 
                 name,
                 params_file=str(params) if params.is_file() else None,
                 parameters={"map_yaml": str(map_yaml)},
+                container=container,
             )
         )
     return specs
@@ -193,6 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                              "(needs foxglove-sdk: the 'viz' extra, which make installs)")
     parser.add_argument("--foxglove-port", type=int, default=8765,
                         help="port of the --foxglove server on 127.0.0.1 (8765; 0: a free one)")
+    parser.add_argument("--separate", action="store_true",
+                        help="each localizer in a process of its own (default: all in one container, docs/footprint.md)")
     args = parser.parse_args(argv)
     if not args.speed > 0.0:
         parser.error(f"--speed must be > 0, got {args.speed!r}")
@@ -286,7 +290,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         result = run_nodes(
-            build_specs(scenario_path, map_yaml, localizers, args.speed),
+            build_specs(scenario_path, map_yaml, localizers, args.speed, None if args.separate else "localizers"),
             domain_id=domain_id,
             duration=duration,
             stop=stop,

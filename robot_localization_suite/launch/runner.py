@@ -14,6 +14,11 @@ does the part of their job this package needs:
   which and with what code): SIGINT first (rclpy shuts down cleanly), then SIGTERM,
   then SIGKILL, each after a timeout.
 
+* nodes with the same ``container: NAME`` share one process instead, as nodes loaded into a ROS 2
+  component container do (:mod:`..nodes.container`): numba, LLVM, rclpy and the messages are loaded
+  once; each node keeps its name, parameters, remappings, topics and lifecycle, and a node that raises
+  there is logged and stopped without the others. Only the localizers (``registry.PLUGINS``) can share
+  a process; the container's output lines are prefixed ``[NAME]``;
 * the localizers are lifecycle nodes: with ``autostart: true`` (the default, as nav2's lifecycle
   manager has it) the runner configures, then activates them through their ``lifecycle_msgs``
   services (:mod:`.lifecycle`); with ``autostart: false`` it leaves them unconfigured for another
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import os
 import re
 import signal
@@ -115,6 +121,8 @@ class NodeSpec:
         parameters: single parameters (``-p k:=v``), applied after the params file.
         remaps: topic or service remappings (``-r from:=to``).
         arguments: extra command-line arguments before ``--ros-args`` (e.g. ``--record DIR``).
+        container: the name of the process this node shares with the other nodes of that name
+            (:mod:`..nodes.container`); None: a process of its own.
     """
 
     executable: str
@@ -123,6 +131,7 @@ class NodeSpec:
     parameters: dict[str, Any] = field(default_factory=dict)
     remaps: dict[str, str] = field(default_factory=dict)
     arguments: list[str] = field(default_factory=list)
+    container: str | None = None
 
     @property
     def module(self) -> str:
@@ -150,6 +159,20 @@ class NodeSpec:
             format_parameter(value)
             if not isinstance(key, str) or not key:
                 raise RunError(f"node {self.name!r}: parameter name {key!r} is not a string")
+        if self.container is not None:
+            self._check_container()
+
+    def _check_container(self) -> None:
+        from ..registry import PLUGINS
+
+        if not isinstance(self.container, str) or not _NODE_NAME.match(self.container):
+            raise RunError(f"node {self.name!r}: container must be a name ([A-Za-z_][A-Za-z0-9_]*), "
+                           f"got {self.container!r}")
+        if self.executable not in PLUGINS:
+            raise RunError(f"node {self.name!r}: only localizers can share a container "
+                           f"({', '.join(PLUGINS)}), not {self.executable!r}")
+        if self.arguments:
+            raise RunError(f"node {self.name!r}: a node in a container takes no arguments, got {self.arguments!r}")
 
     def _check_params_file_applies(self, path: Path) -> None:
         """A params file keyed by another node name would be silently ignored by ROS: refuse it."""
@@ -158,19 +181,29 @@ class NodeSpec:
         except SettingsError as exc:
             raise RunError(f"node {self.name!r}: {exc}") from exc
 
-    def command(self, python: str = sys.executable) -> list[str]:
-        """The command line that starts this node."""
-        command = [python, "-m", self.module, *map(str, self.arguments), "--ros-args", "-r", f"__node:={self.name}"]
+    def ros_arguments(self) -> list[str]:
+        """``--ros-args`` and what follows: the node's name, params file, parameters and remappings."""
+        arguments = ["--ros-args", "-r", f"__node:={self.name}"]
         if self.params_file is not None:
-            command += ["--params-file", str(self.params_file)]
+            arguments += ["--params-file", str(self.params_file)]
         for key, value in self.parameters.items():
-            command += ["-p", f"{key}:={format_parameter(value)}"]
+            arguments += ["-p", f"{key}:={format_parameter(value)}"]
         for source, target in self.remaps.items():
-            command += ["-r", f"{source}:={target}"]
-        return command
+            arguments += ["-r", f"{source}:={target}"]
+        return arguments
+
+    def command(self, python: str = sys.executable) -> list[str]:
+        """The command line that starts this node in a process of its own."""
+        return [python, "-m", self.module, *map(str, self.arguments), *self.ros_arguments()]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields, as a runfile entry has them."""
+        return {"executable": self.executable, "name": self.name, "params_file": self.params_file,
+                "parameters": dict(self.parameters), "remaps": dict(self.remaps), "arguments": list(self.arguments),
+                "container": self.container}
 
 
-_NODE_FIELDS = {"executable", "name", "params_file", "parameters", "remaps", "arguments"}
+_NODE_FIELDS = {"executable", "name", "params_file", "parameters", "remaps", "arguments", "container"}
 
 
 def node_spec_from_dict(entry: Any, index: int) -> NodeSpec:
@@ -232,13 +265,27 @@ def _print_line(name: str, line: str) -> None:
         sys.stdout.flush()
 
 
-class NodeProcess:
-    """One running node: its process and the thread that forwards its output."""
+def container_command(name: str, specs: Sequence[NodeSpec], python: str = sys.executable) -> list[str]:
+    """The command line of the process holding ``specs`` (container ``name``)."""
+    return [python, "-m", f"{PACKAGE}.nodes.container", name, json.dumps([spec.as_dict() for spec in specs])]
 
-    def __init__(self, spec: NodeSpec, env: dict[str, str], output: Callable[[str, str], None]) -> None:
-        self.spec = spec
+
+class NodeProcess:
+    """One running process (a node, or a container of nodes) and the thread that forwards its output.
+
+    Args:
+        name: the node's name, or the container's; the prefix of its output lines.
+        command: what starts it.
+        nodes: the nodes it holds (names).
+    """
+
+    def __init__(self, name: str, command: list[str], env: dict[str, str], output: Callable[[str, str], None],
+                 nodes: Sequence[str] = ()) -> None:
+        self._name = name
+        self.command = command
+        self.nodes = list(nodes) or [name]
         self.process = subprocess.Popen(
-            spec.command(),
+            command,
             env=env,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
@@ -250,12 +297,12 @@ class NodeProcess:
             # the nodes in order, and a node's own children are stopped with it.
             start_new_session=True,
         )
-        self._reader = threading.Thread(target=self._forward, args=(output,), daemon=True, name=f"out-{spec.name}")
+        self._reader = threading.Thread(target=self._forward, args=(output,), daemon=True, name=f"out-{name}")
         self._reader.start()
 
     @property
     def name(self) -> str:
-        return self.spec.name
+        return self._name
 
     @property
     def pid(self) -> int:
@@ -331,6 +378,9 @@ class NodeGroup:
         duplicates = sorted({name for name in names if names.count(name) > 1})
         if duplicates:
             raise RunError(f"node names must be unique, repeated: {duplicates!r}")
+        clashes = sorted({spec.container for spec in specs if spec.container in names})
+        if clashes:
+            raise RunError(f"a container must not share a node's name (output prefixes, exit codes): {clashes!r}")
         for spec in specs:
             spec.validate()
         self.specs = list(specs)
@@ -349,10 +399,20 @@ class NodeGroup:
 
     def start(self) -> None:
         env = self.environment()
+        started: set[str] = set()
         for spec in self.specs:
-            process = NodeProcess(spec, env, self.output)
-            self.processes.append(process)
-            self.log(f"started {spec.name} (pid {process.pid}): {' '.join(spec.command()[1:])}")
+            if spec.container is None:
+                process = NodeProcess(spec.name, spec.command(), env, self.output)
+                self.processes.append(process)
+                self.log(f"started {spec.name} (pid {process.pid}): {' '.join(process.command[1:])}")
+            elif spec.container not in started:
+                started.add(spec.container)
+                members = [member for member in self.specs if member.container == spec.container]
+                process = NodeProcess(spec.container, container_command(spec.container, members), env, self.output,
+                                      nodes=[member.name for member in members])
+                self.processes.append(process)
+                self.log(f"started container {spec.container} (pid {process.pid}) holding "
+                         f"{', '.join(process.nodes)}")
 
     def first_exited(self) -> tuple[str, int] | None:
         for process in self.processes:
@@ -509,7 +569,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="rls_run",
         description=(
-            "Start the nodes of RUNFILE as separate processes (DDS on loopback), prefix their output with "
+            "Start the nodes of RUNFILE as separate processes or in containers (DDS on loopback), prefix their output with "
             "[name], and stop all of them on Ctrl-C, on SIGTERM, or when one exits."
         ),
         epilog=(
@@ -520,6 +580,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "  parameters  mapping of single parameters (-p name:=value)\n"
             "  remaps      mapping from:to of topics/services (-r from:=to)\n"
             "  arguments   list of extra arguments before --ros-args\n"
+            "  container   NAME: share one process with the other nodes of that container (localizers only)\n"
             "and 'autostart' (default true): configure and activate the lifecycle nodes (the localizers)\n"
             "through their lifecycle_msgs services, as nav2's lifecycle manager does; false leaves them\n"
             "unconfigured for another manager (ros2 lifecycle set, nav2's lifecycle_manager).\n"

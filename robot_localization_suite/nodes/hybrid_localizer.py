@@ -4,9 +4,15 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from ..registry import PLUGINS
-from .localizer_node import run_localizer
+from .localizer_node import LocalizerNode, run_localizer
+
+
+def create_node(**options: Any) -> LocalizerNode:
+    """The node, for a container (``nodes/container.py``): ``options`` go to rclpy's ``Node``."""
+    return LocalizerNode(PLUGINS["hybrid_localizer"], **options)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -16,12 +16,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import yaml
 from numpy.typing import NDArray
 
 from ..core import metrics
+from ..core.edt import distance_to_marked
 from ..core.grid_map import GridMap
 from .carmen_log import CarmenLogError, _report_to_stderr
 from .carmen_to_bag import (
@@ -166,7 +166,7 @@ def check_block_map(grid_map: GridMap, poses: NDArray[np.float64], label: str) -
     free = grid_map.free_mask
     if not free.any():
         raise CrossValidationError(f"{label}: its map (from the other blocks) has no free cell")
-    distance = cv2.distanceTransform(np.where(free, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    distance = distance_to_marked(free)
     cells = grid_map.world_to_cell(np.asarray(poses)[:, :2])
     inside = grid_map.in_bounds(cells)
     near = np.zeros(inside.shape, dtype=bool)

@@ -25,7 +25,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -104,8 +103,11 @@ class ObstacleGrid:
         occupied = grid_map.occupied_mask
         erosion = int(math.ceil(2.0 * margin / self.resolution - 1e-9)) if margin > 0.0 else 0
         if erosion > 0:
-            kernel = np.ones((2 * erosion + 1, 2 * erosion + 1), dtype=np.uint8)
-            occupied = cv2.erode(occupied.astype(np.uint8), kernel, borderValue=0).astype(bool)
+            # Erosion by a (2e + 1)^2 square, off-map cells not occupied: the window is full of occupied cells.
+            window = summed_area_table(np.pad(occupied, erosion))
+            side = 2 * erosion + 1
+            count = window[side:, side:] - window[:-side, side:] - window[side:, :-side] + window[:-side, :-side]
+            occupied = count == side * side
         self.certain_sat = summed_area_table(occupied)
         self.extent = (x_min, x_max, y_min, y_max)
 
