@@ -281,7 +281,7 @@ def row_text(track: LocalizerTrack, origin: float, width: int = 20) -> str:
     error = "-"
     if state == "LOST":
         error = "- (no pose while lost)"
-    elif track.last_error is not None and _finite(*track.last_error):
+    elif track.last_error is not None and _finite(track.last_error[0], math.degrees(track.last_error[1])):
         error = f"{track.last_error[0]:6.2f} m {math.degrees(track.last_error[1]):6.1f} deg"
         since = None if track.last_error_stamp is None else track.last_error_stamp - origin
         if _finite(since):
