@@ -105,18 +105,20 @@ def camera_world(repo_root: Path) -> World:
     odom: dict[float, Any] = {}
     truth: dict[float, np.ndarray] = {}
     steps = []
+    start: float | None = None  # the bag's own epoch
     for item in read_bag(repo_root / "bags" / "lab_camera", ["/odom", "/ground_truth", "/camera/image_raw"]):
         stamp = round(conversions.stamp_to_seconds(item.msg.header.stamp), 6)
+        start = stamp if start is None else start
         if item.topic == "/odom":
             odom[stamp] = item.msg
         elif item.topic == "/ground_truth":
             truth[stamp] = conversions.odometry_from_msg(item.msg)[1]
         elif stamp in odom and stamp in truth:
             steps.append(Step(stamp, truth[stamp], odom[stamp], item.msg))
-        if stamp > 16.0:
+        if stamp - start > 16.0:
             break
     prefix = steps[:PREFIX_STEPS]
-    suffix = [step for step in steps if step.stamp >= SUFFIX_START]
+    suffix = [step for step in steps if start is not None and step.stamp - start >= SUFFIX_START]
     return World(None, None, prefix, suffix)  # type: ignore[arg-type]
 
 
