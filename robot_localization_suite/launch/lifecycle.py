@@ -19,21 +19,28 @@ __all__ = ["LifecycleManager", "TRANSITIONS"]
 
 # Transition label -> lifecycle_msgs/Transition id; "shutdown" has one id per state, the label names all.
 TRANSITIONS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4, "shutdown": 5}
+# Transition label -> the lifecycle_msgs/State id it ends in (unconfigured 1, inactive 2, active 3, finalized 4).
+GOAL_STATES = {"configure": 2, "cleanup": 1, "activate": 3, "deactivate": 2, "shutdown": 4}
 
 
 class LifecycleManager:
     """Service clients for the lifecycle of ``nodes``, in a rclpy context of their own.
 
+    A transition's answer can be lost: a service may answer before its response writer has matched the
+    client's reader (Fast DDS, ros2/rmw_fastrtps#842, many nodes starting at once). While waiting, the node's
+    state is asked every ``state_check_s``; a node already in the transition's goal state has made it.
+
     Args:
         nodes: node names (their services are ``/<name>/change_state``, ``/<name>/get_state``).
         domain_id: the nodes' ``ROS_DOMAIN_ID`` (this process joins it on loopback DDS).
         log: receives one line per transition.
+        state_check_s: seconds between ``get_state`` checks while a transition's answer is awaited.
     """
 
     def __init__(self, nodes: Sequence[str], *, domain_id: int | None = None,
-                 log: Callable[[str], None] = print) -> None:
+                 log: Callable[[str], None] = print, state_check_s: float = 5.0) -> None:
         import rclpy
-        from lifecycle_msgs.srv import ChangeState
+        from lifecycle_msgs.srv import ChangeState, GetState
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
@@ -48,7 +55,10 @@ class LifecycleManager:
         self._executor = SingleThreadedExecutor(context=self._context)
         self._executor.add_node(self._node)
         self._clients = {name: self._node.create_client(ChangeState, f"/{name}/change_state") for name in self.nodes}
+        self._state_clients = {name: self._node.create_client(GetState, f"/{name}/get_state") for name in self.nodes}
         self._request_type = ChangeState.Request
+        self._state_request_type = GetState.Request
+        self.state_check_s = state_check_s
         self._lock = threading.Lock()
 
     def change_state(self, name: str, transition: str, timeout_s: float,
@@ -66,11 +76,22 @@ class LifecycleManager:
         started = time.monotonic()
         with self._lock:
             future: Any = client.call_async(request)
+            state: Any = None
+            next_check = started + self.state_check_s
             while not future.done():
                 if cancelled() or time.monotonic() > deadline:
                     self.log(f"{name}: {transition} did not answer within {timeout_s:g} s")
                     return False
                 self._executor.spin_once(timeout_sec=0.1)
+                if state is not None and state.done():
+                    if state.result().current_state.id == GOAL_STATES[transition]:
+                        self.log(f"{name}: {transition} done in {time.monotonic() - started:.2f} s, its answer lost "
+                                 f"(the node reports {state.result().current_state.label!r})")
+                        return True
+                    state = None
+                if state is None and time.monotonic() >= next_check:
+                    state = self._state_clients[name].call_async(self._state_request_type())
+                    next_check = time.monotonic() + self.state_check_s
         ok = bool(future.result().success)
         self.log(f"{name}: {transition} {'done' if ok else 'FAILED'} in {time.monotonic() - started:.2f} s")
         return ok
