@@ -75,6 +75,14 @@ def apply_delta(
     return out
 
 
+def _check_alphas(model: object, names: tuple[str, ...]) -> None:
+    """A motion model's noise parameters must be finite and >= 0 (ValueError naming the one that is not)."""
+    for name in names:
+        value = getattr(model, name)
+        if not np.isfinite(value) or value < 0.0:
+            raise ValueError(f"motion model {name} must be finite and >= 0, got {value!r}")
+
+
 @dataclass(frozen=True)
 class MotionBounds:
     """Guaranteed bounds of an odometry step: ``[lo, hi]`` for rot1, trans, rot2."""
@@ -105,10 +113,7 @@ class OdometryMotionModel:
     omnidirectional: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("alpha1", "alpha2", "alpha3", "alpha4", "alpha5"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0.0:
-                raise ValueError(f"motion model {name} must be finite and >= 0, got {value!r}")
+        _check_alphas(self, ("alpha1", "alpha2", "alpha3", "alpha4", "alpha5"))
 
     def sample(
         self,
@@ -212,10 +217,7 @@ class VelocityMotionModel:
     alpha4: float = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("alpha1", "alpha2", "alpha3", "alpha4"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value < 0.0:
-                raise ValueError(f"motion model {name} must be finite and >= 0, got {value!r}")
+        _check_alphas(self, ("alpha1", "alpha2", "alpha3", "alpha4"))
 
     def sample(
         self,
