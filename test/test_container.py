@@ -77,9 +77,10 @@ class LockstepReplay:
                 stamp = message.msg.header.stamp.sec + message.msg.header.stamp.nanosec * 1e-9
                 due = stamp + _TOLERANCE_S - 1e-6
                 handled = lambda due=due: all(s >= due for s in self.tf_stamp.values())  # noqa: E731
-                # Before its first pose a localizer sends no map -> odom: give it a moment instead.
+                # Before its first pose a localizer sends no map -> odom: wait longer for that first one (its first
+                # update may compile kernels; a scan sent meanwhile would make it drop this one, the older).
                 started = all(np.isfinite(s) for s in self.tf_stamp.values())
-                self.probe.spin_until(handled, 60.0 if started else 1.0)
+                self.probe.spin_until(handled, 60.0 if started else 10.0)
         self.probe.spin_for(1.0)
 
     def close(self) -> None:
