@@ -234,10 +234,6 @@ class VelocityMotionModel:
         std_turn = np.sqrt(self.alpha2 * length**2 + self.alpha1 * turn**2)
         length_hat = length + rng.normal(0.0, 1.0, count) * std_length
         turn_hat = turn + rng.normal(0.0, 1.0, count) * std_turn
+        # an arc is its chord, travelled at half the turn
         chord = length_hat * np.sinc(turn_hat / (2.0 * np.pi))
-        heading = poses[:, 2] + 0.5 * turn_hat
-        out = np.empty_like(poses)
-        out[:, 0] = poses[:, 0] + chord * np.cos(heading)
-        out[:, 1] = poses[:, 1] + chord * np.sin(heading)
-        out[:, 2] = wrap_angle(poses[:, 2] + turn_hat)
-        return out
+        return apply_delta(poses, 0.5 * turn_hat, chord, 0.5 * turn_hat)
