@@ -111,7 +111,7 @@ def test_a_kidnapping_to_a_place_the_scan_tells_apart_is_recovered_within_two_up
         office: GridMap, cache: Path) -> None:
     kidnap = 60
     run = drive(office, steps=130, seed=6, kidnap_step=kidnap, kidnap_index=9)
-    hybrid = HybridLocalizer(_settings(cache))
+    hybrid = HybridLocalizer(_settings(cache, wait_for_workers=True))  # the same updates on any load
     hybrid.set_map(office)
     outputs = _replay(hybrid, run)
     assert all(pose_error(estimate.pose, run.truth[k])[0] < 0.3 for k, estimate in outputs if k < kidnap)
@@ -148,7 +148,7 @@ def _corridor_scan(grid_map: GridMap, pose: np.ndarray, stamp: float, range_max:
 def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then_localized(cache: Path) -> None:
     corridor = _twin_corridor()
     range_m = 3.5  # from 5.4 < x < 6.6 neither the truth nor its twin sees the cabinet (or its mirror)
-    hybrid = HybridLocalizer(_settings(cache, max_range=range_m))
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True))  # same on any load
     hybrid.set_map(corridor)
     rng = np.random.default_rng(7)
     # tracked from beside the cabinet, facing east; carried to x = 6.6 facing west; drives west past the cabinet
