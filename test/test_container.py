@@ -73,6 +73,10 @@ class LockstepReplay:
             if message.topic == "/odom":
                 self.odom_pub.publish(message.msg)
             elif message.topic == "/scan":
+                if not any(np.isfinite(s) for s in self.tf_stamp.values()):
+                    # Before any odometry a scan goes at once (an odometry-free PIL needs none): give the first
+                    # odometry time to arrive, or the first update would race it and shift the later ones.
+                    self.probe.spin_for(0.5)
                 self.scan_pub.publish(message.msg)
                 stamp = message.msg.header.stamp.sec + message.msg.header.stamp.nanosec * 1e-9
                 due = stamp + _TOLERANCE_S - 1e-6
