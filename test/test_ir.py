@@ -202,6 +202,46 @@ def test_the_two_level_index_links_hits_to_patterns_to_positions(localizer: IRLo
     assert checked > 25
 
 
+def test_two_240_degree_views_cut_a_positions_patterns_at_the_view_edges_as_the_papers_scanner() -> None:
+    """Paper IV-B-1: each position seen as two 240-degree views (0 and 180 degrees). One fan at 1 degree:
+    a run at rays 70-90 lies inside both views, a run at rays 100-140 crosses the first view's edge (120)."""
+    fan = FanModel(rays=360, max_range=10.0, range_resolution=0.05)
+    codes = np.full((1, 360), NO_RETURN, dtype=np.uint8)
+    codes[0, 70:91] = 100  # 5 m
+    codes[0, 100:141] = np.linspace(40, 80, 41).astype(np.uint8)  # 2-4 m, a slanted wall
+    positions = np.zeros((1, 2))
+    base = settings(split_at_jump=0.0)
+    circle = IRIndex.from_fans(positions, codes, fan, base.index_settings())
+    views = IRIndex.from_fans(positions, codes, fan, replace(base, pattern_views="two_240").index_settings())
+    # one circle: two patterns, each once
+    assert circle.hit_patterns.pattern_count == 2 and circle.pattern_positions.sum() == 2
+    # two views: the inner run twice (one pattern, frequency 2 at this position), the crossing run whole
+    # (second view) and cut at 120 degrees, delimited at its start only (first view)
+    assert views.hit_patterns.pattern_count == 3 and views.pattern_positions.sum() == 4
+    assert sorted(views.pattern_positions.toarray().ravel().tolist()) == [1.0, 1.0, 2.0]
+    per_end, bins = views.settings.pattern_terms_per_end, views.term_bins
+    start_terms = [k * bins + int(codes[0, 100 + k]) // views.pattern_divisor for k in range(21)]  # rays 100-120
+    end_terms = [(per_end + k) * bins + int(codes[0, 140 - k]) // views.pattern_divisor for k in range(per_end)]
+    linked_start = [set(views.hit_patterns.row(t).tolist()) for t in start_terms]
+    linked_end = [set(views.hit_patterns.row(t).tolist()) for t in end_terms]
+    # the cut run and the whole one share their start's hits; only the whole one has the end's (past 120)
+    assert all(len(linked) == 2 for linked in linked_start), linked_start
+    whole = set.intersection(*linked_end)
+    assert len(whole) == 1 and whole < linked_start[0]
+    # a hit 21 beams in from the start (ray 121) is beyond the first view: the cut run stops before it
+    assert (set(views.hit_patterns.row(21 * bins + int(codes[0, 121]) // views.pattern_divisor).tolist())
+            == whole)
+
+
+def test_two_views_still_find_a_noise_free_grid_pose(world: GridMap, localizer: IRLocalizer) -> None:
+    views = IRLocalizer(settings(pattern_views="two_240"), world)
+    views.prepare(scan_at(world, np.array([2.0, 1.5, 0.0])))
+    for x, y, heading in GRID_POSES:
+        pose = np.array([x, y, math.radians(heading)])
+        estimate = views.global_fix(scan_at(world, pose))
+        assert close(estimate.candidates[0], pose, 0.1, math.radians(3.0)), (pose, estimate.candidates[:3])
+
+
 # Grid poses (positions on the 10 cm lattice, headings on the 10-degree steps) with a view that tells
 # them apart: the pillar of room 1, the desk of room 2, the pillar of room 3, the corridor's pillar
 # and bench, a doorway.
@@ -490,6 +530,7 @@ def test_index_settings_come_from_ir_settings_and_only_index_parameters_change_t
         "pattern_terms_per_end": 12,
         "min_pattern_beams": 5,
         "split_at_jump": 0.0,
+        "pattern_views": "two_240",
     }
     assert set(changed) == {f.name for f in fields(IndexSettings)}
     for name, value in changed.items():

@@ -42,7 +42,15 @@ from ..errors import CacheError
 from ..grid_map import GridMap
 from ..progress import ReportingBar, progress_disabled
 from ..raycast import RayCaster
-from .patterns import NO_RETURN, count_fan_runs, fill_fan_runs, fill_terms_all_valid
+from .patterns import (
+    NO_RETURN,
+    count_fan_runs,
+    count_view_runs,
+    fill_fan_runs,
+    fill_terms_all_valid,
+    fill_view_runs,
+    fill_view_terms,
+)
 from .settings import MAX_HIT_CODE
 
 __all__ = [
@@ -131,6 +139,8 @@ class IndexSettings:
         min_pattern_beams: shorter runs of hits are not patterns (noise, legs).
         split_at_jump: also delimit patterns where consecutive ranges differ by more
             than this [m]; 0 follows the paper (no-returns only).
+        pattern_views: ``circle``: patterns of the whole fan; ``two_240``: of two 240-degree views
+            facing 0 and 180 degrees (paper IV-B-1).
 
     No defaults and no checks here: :class:`~.settings.IRSettings` holds and checks them
     and builds this from its fields of the same names (``IRSettings().index_settings()``),
@@ -146,6 +156,18 @@ class IndexSettings:
     pattern_terms_per_end: int
     min_pattern_beams: int
     split_at_jump: float
+    pattern_views: str
+
+
+#: Half the field of view of each of the paper's two views (IV-B-1: a 240-degree scanner at 0 and 180 degrees).
+_VIEW_HALF_WIDTH = math.radians(120.0)
+
+
+def view_rays(fan: FanModel) -> NDArray[np.int64]:
+    """Ray indices ``(2, V)`` of the paper's two 240-degree views, facing 0 and 180 degrees, in the fan."""
+    half = int(math.floor(_VIEW_HALF_WIDTH / fan.ray_step + 1e-9))
+    offsets = np.arange(-half, half + 1)
+    return np.stack([offsets % fan.rays, (offsets + int(round(fan.rays / 2))) % fan.rays]).astype(np.int64)
 
 
 # --------------------------------------------------------------------------------------------
@@ -394,6 +416,15 @@ class IRIndex:
                 f"{settings.min_clearance} m; lower min_clearance"
             )
         fans = cast_fans(grid_map, positions, fan, unknown_blocks=settings.unknown_blocks, progress=progress)
+        index = cls.from_fans(positions, fans, fan, settings, progress=progress)
+        index.lattice_step = step
+        index.build_seconds = time.perf_counter() - start_time
+        return index
+
+    @classmethod
+    def from_fans(cls, positions: NDArray[np.float64], fans: NDArray[np.uint8], fan: FanModel,
+                  settings: IndexSettings, *, progress: bool = False) -> IRIndex:
+        """The two-level index of quantised fans ``(P, M)`` cast at ``positions`` ``(P, 2)`` [m]."""
         index = cls(
             positions=positions,
             fans=fans,
@@ -404,8 +435,6 @@ class IRIndex:
             pattern_frequency=np.zeros(0, dtype=np.int64),
         )
         index._build_patterns(progress=progress)
-        index.lattice_step = step
-        index.build_seconds = time.perf_counter() - start_time
         return index
 
     def _build_patterns(self, *, progress: bool) -> None:
@@ -413,7 +442,12 @@ class IRIndex:
         fans = self.fans
         cap, jump, divisor = self.pattern_cap_code, self.jump_codes, self.pattern_divisor
         steps = ReportingBar(total=4, desc="IR index", disable=progress_disabled(progress), leave=False)
-        counts = count_fan_runs(fans, cap, jump, settings.min_pattern_beams)
+        # Rows the patterns are cut from: each whole circular fan, or each position's two views (row p * 2 + v).
+        views = view_rays(self.fan) if settings.pattern_views == "two_240" else None
+        if views is None:
+            counts = count_fan_runs(fans, cap, jump, settings.min_pattern_beams)
+        else:
+            counts = count_view_runs(fans, views, cap, jump, settings.min_pattern_beams)
         offsets = np.zeros(len(counts) + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         total = int(offsets[-1])
@@ -421,9 +455,17 @@ class IRIndex:
         run_start = np.empty(total, dtype=np.int32)
         run_length = np.empty(total, dtype=np.int32)
         run_hash = np.empty(total, dtype=np.uint64)
-        fill_fan_runs(fans, cap, jump, settings.min_pattern_beams, divisor, offsets[:-1], run_start, run_length, run_hash)
+        if views is None:
+            run_anchors = None
+            fill_fan_runs(fans, cap, jump, settings.min_pattern_beams, divisor, offsets[:-1], run_start, run_length,
+                          run_hash)
+        else:
+            run_anchors = np.empty(total, dtype=np.int8)
+            fill_view_runs(fans, views, cap, jump, settings.min_pattern_beams, divisor, offsets[:-1], run_start,
+                           run_length, run_anchors, run_hash)
         del offsets
-        run_position = np.repeat(np.arange(len(fans), dtype=np.int32), counts)
+        run_row = np.repeat(np.arange(len(counts), dtype=np.int32), counts)  # the fan, or the view, of each run
+        run_position = run_row if views is None else run_row // len(views)
         del counts
         steps.update()
 
@@ -450,14 +492,22 @@ class IRIndex:
 
         # Level 1: hit -> pattern, from one representative occurrence of each pattern.
         per_end = settings.pattern_terms_per_end
-        lengths, starts, rows = run_length[first], run_start[first], run_position[first]
-        del run_length, run_start, run_position, first
+        lengths, starts, rows = run_length[first], run_start[first], run_row[first]
+        anchors = None if run_anchors is None else run_anchors[first].astype(np.int64)
+        del run_length, run_start, run_position, run_row, run_anchors, first
+        ends = 2 if anchors is None else (anchors & 1) + (anchors >> 1 & 1)  # delimited ends of each pattern
         term_offsets = np.zeros(pattern_count + 1, dtype=np.int64)
-        np.cumsum(2 * np.minimum(lengths, per_end), out=term_offsets[1:])
+        np.cumsum(ends * np.minimum(lengths, per_end), out=term_offsets[1:])
         term_type = np.uint16 if self.term_count <= np.iinfo(np.uint16).max else np.int32
         terms = np.empty(int(term_offsets[-1]), dtype=term_type)
-        fill_terms_all_valid(fans, rows, starts, lengths, per_end, divisor, self.term_bins, term_offsets[:-1], terms)
-        del lengths, starts, rows
+        if views is None:
+            fill_terms_all_valid(fans, rows, starts, lengths, per_end, divisor, self.term_bins, term_offsets[:-1],
+                                 terms)
+        else:
+            assert anchors is not None
+            fill_view_terms(fans, views, rows.astype(np.int64), starts.astype(np.int64), lengths.astype(np.int64),
+                            anchors, per_end, divisor, self.term_bins, term_offsets[:-1], terms)
+        del lengths, starts, rows, anchors
         # Built pattern by pattern, inverted once into the hit -> pattern index.
         blocks = pattern_blocks(pattern_count)
         indptr, patterns = _invert(term_offsets, terms, self.term_count, blocks)

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 
 from .settings import MAX_HIT_CODE
 
-__all__ = ["NO_RETURN", "extract_runs", "pattern_terms", "count_fan_runs", "fill_fan_runs", "fill_terms_all_valid"]
+__all__ = ["NO_RETURN", "extract_runs", "pattern_terms", "count_fan_runs", "fill_fan_runs", "count_view_runs",
+           "fill_view_runs", "fill_view_terms", "fill_terms_all_valid"]
 
 #: Byte code of a reading with no return within the model's maximum range.
 NO_RETURN = 255
@@ -141,6 +142,56 @@ def fill_fan_runs(fans, cap, jump, min_len, divisor, offsets, out_start, out_len
 
 
 @numba.njit(cache=True, nogil=True)
+def _fnv_view_run(codes, start, length, anchors, divisor):
+    """FNV-1a hash of a run of a limited view: its binned codes and which ends are delimited."""
+    h = _fnv_run(codes, start, length, divisor)
+    return (h ^ np.uint64(anchors)) * np.uint64(1099511628211)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def count_view_runs(fans, view_rays, cap, jump, min_len):
+    """Runs with a delimited end in each view: view ``v`` of fan ``p`` is row ``p * V + v``, the fan's
+    readings ``view_rays[v]`` (a limited view: its edges delimit nothing)."""
+    views = view_rays.shape[0]
+    count = np.zeros(fans.shape[0] * views, dtype=np.int64)
+    m = view_rays.shape[1]
+    for q in numba.prange(count.shape[0]):
+        codes = fans[q // views][view_rays[q % views]]
+        starts = np.empty(m, dtype=np.int64)
+        lengths = np.empty(m, dtype=np.int64)
+        anchors = np.empty(m, dtype=np.int64)
+        valid = np.ones(m, dtype=np.bool_)
+        n = _runs_of_row(codes, valid, cap, jump, min_len, False, starts, lengths, anchors)
+        for r in range(n):
+            if anchors[r] > 0:
+                count[q] += 1
+    return count
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def fill_view_runs(fans, view_rays, cap, jump, min_len, divisor, offsets, out_start, out_length, out_anchors,
+                   out_hash):
+    """The runs :func:`count_view_runs` counts: start, length, anchor bits and hash of each."""
+    views = view_rays.shape[0]
+    m = view_rays.shape[1]
+    for q in numba.prange(fans.shape[0] * views):
+        codes = fans[q // views][view_rays[q % views]]
+        starts = np.empty(m, dtype=np.int64)
+        lengths = np.empty(m, dtype=np.int64)
+        anchors = np.empty(m, dtype=np.int64)
+        valid = np.ones(m, dtype=np.bool_)
+        n = _runs_of_row(codes, valid, cap, jump, min_len, False, starts, lengths, anchors)
+        o = offsets[q]
+        for r in range(n):
+            if anchors[r] > 0:
+                out_start[o] = starts[r]
+                out_length[o] = lengths[r]
+                out_anchors[o] = anchors[r]
+                out_hash[o] = _fnv_view_run(codes, starts[r], lengths[r], anchors[r], divisor)
+                o += 1
+
+
+@numba.njit(cache=True, nogil=True)
 def _fill_terms(fans, rows, starts, lengths, anchors, valid_rows, per_end, divisor, bins, offsets, out, circular):
     """Term ids of runs: ``((side * per_end) + offset) * bins + range_bin``; -1 where a reading is invalid."""
     m = fans.shape[1]
@@ -239,3 +290,21 @@ def fill_terms_all_valid(fans, rows, starts, lengths, per_end, divisor, bins, of
             out[o] = k * bins + codes[(starts[r] + k) % m] // divisor
             out[o + 1] = (per_end + k) * bins + codes[(starts[r] + lengths[r] - 1 - k) % m] // divisor
             o += 2
+
+
+@numba.njit(cache=True, nogil=True)
+def fill_view_terms(fans, view_rays, rows, starts, lengths, anchors, per_end, divisor, bins, offsets, out):
+    """Term ids of runs of views (rows as in :func:`count_view_runs`), from each delimited end only."""
+    views = view_rays.shape[0]
+    for r in range(rows.shape[0]):
+        fan = fans[rows[r] // views]
+        rays = view_rays[rows[r] % views]
+        o = offsets[r]
+        n = min(per_end, lengths[r])
+        for k in range(n):
+            if anchors[r] & 1:
+                out[o] = k * bins + fan[rays[starts[r] + k]] // divisor
+                o += 1
+            if anchors[r] & 2:
+                out[o] = (per_end + k) * bins + fan[rays[starts[r] + lengths[r] - 1 - k]] // divisor
+                o += 1

@@ -62,6 +62,10 @@ class IRSettings(Settings):
     min_pattern_beams: int = setting(3, "shortest pattern, in beams", low=1, high=100_000, read_only=True)
     split_at_jump: float = setting(0.5, "range jump that also ends a pattern; 0: no-returns only (paper)", unit="m",
                                    low=0.0, high=1e3, read_only=True)
+    pattern_views: str = setting("circle", "what each indexed position's patterns are cut from: its whole "
+                                 "360-degree fan (ours), or two 240-degree views facing 0 and 180 degrees, the "
+                                 "paper's scanner (IV-B-1; a pattern at a view's edge is delimited at its other end "
+                                 "only)", choices=("circle", "two_240"), read_only=True)
     # query (IV-B)
     heading_step: float = setting(math.radians(5.0), "heading step of step 2 (paper 5 deg)", unit="rad",
                                   low=1e-3, high=math.pi)
