@@ -75,11 +75,12 @@ bench: $(STAMP) $(INTERFACES) $(if $(HAVE_CARMEN),$(CV_INDEXES))
 		--max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) $(if $(HAVE_CARMEN),--cv $(CV_INDEXES)) \
 		$(BENCH_ARGS)
 
-# The methods with a paper profile, as published, on every bag: results/paper/summary.md beside results/summary.md.
+# The methods with a paper profile, as published, on every bag: results/paper/summary.md, and after a make bench
+# results/paper/comparison.md (each method's paper and ours rows, bag by bag).
 bench-paper: $(STAMP) $(INTERFACES)
 	$(PY) -m robot_localization_suite.tools.bench --all --localizers pil_localizer ir_initializer ial_localizer \
 		--profile paper --out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
-		$(BENCH_ARGS)
+		$(if $(wildcard results/summary.json),--compare-with ours=results) $(BENCH_ARGS)
 
 # Only the cross-validation runs: results/cv/summary.md.
 ifeq ($(HAVE_CARMEN),)

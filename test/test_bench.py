@@ -339,6 +339,33 @@ def test_with_tracking_and_global_fixes_append_their_tables(kidnap_bag, tmp_path
     assert (tmp_path / "summary.md").read_text() == "# replay global\n\n## replay tracking\n\n## fixes None\n"
 
 
+def test_compare_with_sets_this_runs_replays_beside_another_runs_per_localizer(kidnap_bag, tmp_path, monkeypatch):
+    path, _ = kidnap_bag
+    ours = {"room_kidnap": {"ir_initializer": {"outputs": 10, "correct_rate": 0.9, "rmse_xy_m": 0.05},
+                            "pil_localizer": {"skipped": "not on this bag"}}}
+    (tmp_path / "ours").mkdir()
+    (tmp_path / "ours" / "summary.json").write_text(json.dumps(ours))
+    paper = {"room_kidnap": {"ir_initializer": {"outputs": 10, "correct_rate": 0.5, "rmse_xy_m": 0.25},
+                             "pil_localizer": {"outputs": 10, "correct_rate": 0.7}}}
+
+    def replays(bags, specs, out, **kwargs):
+        Path(out).mkdir(parents=True, exist_ok=True)
+        return paper if kwargs["mode"] == "global" else {"room_kidnap": {}}  # tracking is not compared
+
+    monkeypatch.setattr(bench.cli, "run_benchmark", replays)
+    monkeypatch.setattr(bench.cli, "append_section", lambda out, sub: None)
+    argv = [str(path), "--localizers", "ir_initializer", "pil_localizer", "--profile", "paper", "--out",
+            str(tmp_path / "paper"), "--with-tracking", "--compare-with", f"ours={tmp_path / 'ours'}", "--no-plots"]
+    assert bench.main(argv) == 0
+    text = (tmp_path / "paper" / "comparison.md").read_text()
+    ir = text[text.index("### ir_initializer"):text.index("### pil_localizer")]
+    assert "| room_kidnap | paper | 0.5 |" in ir and "| room_kidnap | ours | 0.9 |" in ir
+    assert "| 0.25 |" in ir and "| 0.05 |" in ir
+    assert "| room_kidnap | ours | not on this bag |" in text[text.index("### pil_localizer"):]
+    # a directory without summary.json is refused before anything runs
+    assert bench.main([*argv[:-3], "--compare-with", f"ours={tmp_path / 'nowhere'}"]) == 1
+
+
 def off_from_5_to_8_s(stamp: float) -> tuple[float, float, float]:
     """Echo error: 1 m off from 5 s to 8 s after the first scan, exact otherwise."""
     return (1.0, 0.0, 0.0) if 5.0 - 1e-9 <= stamp - 100.0 < 8.0 - 1e-9 else (0.0, 0.0, 0.0)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import sys
 from collections.abc import Sequence
@@ -31,7 +32,7 @@ from .executor import DaskExecutor, Executor, SequentialExecutor, dask_available
 from .run import run_benchmark, run_global_fixes
 from .specs import registry_spec
 from .sweeps import parse_sweeps, sweep_specs
-from .tables import append_section, summary_table
+from .tables import append_section, comparison_tables, summary_table
 
 __all__ = ["main", "discover_bags", "default_bags_dir"]
 
@@ -55,6 +56,18 @@ def _parse_params_files(items: Sequence[str]) -> dict[str, Path]:
             raise ValueError(f"--params-file expects NAME=PATH, got {item!r}")
         files[name] = Path(path)
     return files
+
+
+def _read_comparison(value: str) -> tuple[str, dict[str, Any]]:
+    """``LABEL=DIR`` -> the label and DIR/summary.json (read before the runs, so a wrong path fails at once)."""
+    label, sep, directory = value.partition("=")
+    if not sep or not label or not directory:
+        raise ValueError(f"--compare-with wants LABEL=DIR, got {value!r}")
+    path = Path(directory) / "summary.json"
+    try:
+        return label, json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"--compare-with {value}: cannot read {path}: {exc}") from exc
 
 
 def _profile_file(name: str, profile: str) -> Path:
@@ -133,6 +146,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--profile", choices=("paper",), default=None,
                         help="paper: every localizer reads config/<name>_paper.yaml (the method as its paper "
                         "describes it; docs/<method>.md), unless --params-file names another file")
+    parser.add_argument("--compare-with", default=None, metavar="LABEL=DIR",
+                        help="after the replays, also write OUT/comparison.md: a table per localizer, a row per bag "
+                        "for this run (labelled by --profile, else 'this run') and for the run in DIR (its "
+                        "summary.json, labelled LABEL), e.g. --profile paper --compare-with ours=results")
     parser.add_argument("--all", action="store_true", help="every available localizer over every bag in bags/")
     parser.add_argument("--bags-dir", type=Path, default=None, help="where --all looks for bags (default: bags/)")
     parser.add_argument("--skip", action="append", default=[], metavar="NAME:BAG_GLOB",
@@ -188,10 +205,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(name)s: %(message)s")
     executor: Executor | None = None
+    replays = None  # the replays in --mode, which --compare-with sets beside the other run's
     try:
         overrides = _parse_overrides(args.overrides)
         params_files = _parse_params_files(args.params_files)
         skips = _parse_skips(args.skip)
+        compare = _read_comparison(args.compare_with) if args.compare_with else None
+        if compare is not None and args.global_fixes:
+            raise ValueError("--compare-with compares replays, not --global-fixes")
         bags = list(args.bags)
         if args.all:
             bags += [b for b in discover_bags(args.bags_dir or default_bags_dir()) if b not in bags]
@@ -234,6 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
                                     child_progress=args.verbose, executor=executor, export_tum=args.export_tum,
                                     record=args.record)
+            replays = summary
             if args.with_tracking and args.mode == "global":
                 print(summary_table(summary))
                 summary = run_benchmark(bags, specs, args.out / "tracking", mode="tracking", map_yaml=args.map,
@@ -274,5 +296,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if cv_summary is None:
             print(summary_table(summary))
         print(f"\nwritten: {args.out / 'summary.json'}, {args.out / 'summary.md'}")
+    if replays is not None and compare is not None:
+        label, other = compare
+        text = comparison_tables({args.profile or "this run": replays, label: other})
+        (args.out / "comparison.md").write_text(f"# {args.profile or 'this run'} and {label}\n\n{text}\n")
+        print(f"written: {args.out / 'comparison.md'}")
     return 0
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ...core import metrics
 
-__all__ = ["summary_table", "write_summary", "append_section", "one_line"]
+__all__ = ["summary_table", "write_summary", "append_section", "one_line", "comparison_tables"]
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -143,3 +143,30 @@ def append_section(out: Path, sub: str) -> None:
     with open(out / "summary.md", "a") as stream:
         stream.write("\n" + extra)
 
+
+
+_COMPARED = ("correct_rate", "false_localized_rate", "time_to_first_fix_s", "kidnap_recovery_s", "rmse_xy_m",
+             "update_ms_median", "peak_rss_mb")
+
+
+def comparison_tables(runs: Mapping[str, Mapping[str, Mapping[str, Mapping[str, Any]]]]) -> str:
+    """A markdown table per localizer of the first run: a row per bag and run (``runs``: label -> summary),
+    so that two settings of one method (its paper profile and ours) read side by side."""
+    titles = dict(_REPLAY_COLUMNS)
+    labels = list(runs)
+    first = runs[labels[0]]
+    names = list(dict.fromkeys(name for bag_runs in first.values() for name in bag_runs))
+    parts = []
+    for name in names:
+        header = ["bag", "run", *(titles[key] for key in _COMPARED)]
+        lines = [f"### {name}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for bag in first:
+            for label in labels:
+                fields = runs[label].get(bag, {}).get(name)
+                if fields is None or "outputs" not in fields:
+                    why = "not run" if fields is None else fields.get("skipped") or fields.get("error") or "no output"
+                    lines.append("| " + " | ".join([bag, label, why, *([""] * (len(_COMPARED) - 1))]) + " |")
+                else:
+                    lines.append("| " + " | ".join([bag, label, *(_fmt(fields.get(key)) for key in _COMPARED)]) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts)
