@@ -148,23 +148,27 @@ def _fnv_view_run(codes, start, length, anchors, divisor):
     return (h ^ np.uint64(anchors)) * np.uint64(1099511628211)
 
 
+@numba.njit(cache=True, nogil=True)
+def _view_runs(fans, view_rays, q, cap, jump, min_len):
+    """Runs of view row ``q``: view ``q % V`` of fan ``q // V``, the fan's readings ``view_rays[q % V]`` (a
+    limited view: its edges delimit nothing). Returns the view's codes, starts, lengths, anchors and count."""
+    views = view_rays.shape[0]
+    m = view_rays.shape[1]
+    codes = fans[q // views][view_rays[q % views]]
+    starts = np.empty(m, dtype=np.int64)
+    lengths = np.empty(m, dtype=np.int64)
+    anchors = np.empty(m, dtype=np.int64)
+    n = _runs_of_row(codes, np.ones(m, dtype=np.bool_), cap, jump, min_len, False, starts, lengths, anchors)
+    return codes, starts, lengths, anchors, n
+
+
 @numba.njit(cache=True, nogil=True, parallel=True)
 def count_view_runs(fans, view_rays, cap, jump, min_len):
-    """Runs with a delimited end in each view: view ``v`` of fan ``p`` is row ``p * V + v``, the fan's
-    readings ``view_rays[v]`` (a limited view: its edges delimit nothing)."""
-    views = view_rays.shape[0]
-    count = np.zeros(fans.shape[0] * views, dtype=np.int64)
-    m = view_rays.shape[1]
+    """Runs with a delimited end in each view row (see :func:`_view_runs`)."""
+    count = np.zeros(fans.shape[0] * view_rays.shape[0], dtype=np.int64)
     for q in numba.prange(count.shape[0]):
-        codes = fans[q // views][view_rays[q % views]]
-        starts = np.empty(m, dtype=np.int64)
-        lengths = np.empty(m, dtype=np.int64)
-        anchors = np.empty(m, dtype=np.int64)
-        valid = np.ones(m, dtype=np.bool_)
-        n = _runs_of_row(codes, valid, cap, jump, min_len, False, starts, lengths, anchors)
-        for r in range(n):
-            if anchors[r] > 0:
-                count[q] += 1
+        _, _, _, anchors, n = _view_runs(fans, view_rays, q, cap, jump, min_len)
+        count[q] = np.count_nonzero(anchors[:n])
     return count
 
 
@@ -172,15 +176,8 @@ def count_view_runs(fans, view_rays, cap, jump, min_len):
 def fill_view_runs(fans, view_rays, cap, jump, min_len, divisor, offsets, out_start, out_length, out_anchors,
                    out_hash):
     """The runs :func:`count_view_runs` counts: start, length, anchor bits and hash of each."""
-    views = view_rays.shape[0]
-    m = view_rays.shape[1]
-    for q in numba.prange(fans.shape[0] * views):
-        codes = fans[q // views][view_rays[q % views]]
-        starts = np.empty(m, dtype=np.int64)
-        lengths = np.empty(m, dtype=np.int64)
-        anchors = np.empty(m, dtype=np.int64)
-        valid = np.ones(m, dtype=np.bool_)
-        n = _runs_of_row(codes, valid, cap, jump, min_len, False, starts, lengths, anchors)
+    for q in numba.prange(fans.shape[0] * view_rays.shape[0]):
+        codes, starts, lengths, anchors, n = _view_runs(fans, view_rays, q, cap, jump, min_len)
         o = offsets[q]
         for r in range(n):
             if anchors[r] > 0:
