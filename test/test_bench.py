@@ -582,12 +582,15 @@ def test_a_params_file_or_the_paper_profile_replaces_the_packaged_and_per_bag_fi
                                 params_file=registry.config_dir() / "ir_initializer_paper.yaml")
     settings = paper.factory.args[1]
     assert (settings.nms_distance, settings.refine_candidates, settings.initial_particles) == (0.0, 0, "one_per_candidate")
+    assert settings.pattern_views == "two_240"  # the paper's two 240-degree views
     assert settings.seed == 3 and paper.params == "ir_initializer_paper.yaml"  # --set still on top
     assert bench.registry_spec("ir_initializer").factory.args[1].initial_particles == "rank"
     ial = bench.registry_spec("ial_localizer", params_file=registry.config_dir() / "ial_localizer_paper.yaml")
     assert ial.for_bag("intel") is ial and not ial.factory.args[1].laser_cell_constraint  # no per-bag file
     pil = bench.registry_spec("pil_localizer", params_file=registry.config_dir() / "pil_localizer_paper.yaml")
     assert pil.factory.args[1].match_score == "correlation"
+    ima = bench.registry_spec("ima_topo_localizer", params_file=registry.config_dir() / "ima_topo_localizer_paper.yaml")
+    assert ima.factory.args[1].odometry_reset == "winner"  # Code 3.1
     own = tmp_path / "mine.yaml"
     own.write_text("mcl_baseline:\n  ros__parameters:\n    max_particles: 777\n")
     assert bench.registry_spec("mcl_baseline", params_file=own).factory.args[1].max_particles == 777
