@@ -6,7 +6,7 @@
 #   make bench BENCH_ARGS="--skip ial_localizer:fr101"   options of rls_bench (see .venv/bin/rls_bench --help)
 #   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
 #   make bench-campus                     IR and PIL on the Freiburg campus (its bag is made on demand)
-#   make bench-paper                      PIL, IR and IAL as their papers describe them (config/*_paper.yaml)
+#   make bench-paper                      PIL, IR, IAL and IMA as their papers describe them (config/*_paper.yaml)
 #   make bench BENCH_WORKERS=2            runs side by side (Dask workers): faster, but the update times then
 #                                         share the cores and differ from the published tables (1: one at a time)
 #   make soak SOAK_ARGS="--speed 10"      options of rls_soak (see .venv/bin/rls_soak --help)
@@ -78,8 +78,8 @@ bench: $(STAMP) $(INTERFACES) $(if $(HAVE_CARMEN),$(CV_INDEXES))
 # The methods with a paper profile, as published, on every bag: results/paper/summary.md, and after a make bench
 # results/paper/comparison.md (each method's paper and ours rows, bag by bag).
 bench-paper: $(STAMP) $(INTERFACES)
-	$(PY) -m robot_localization_suite.tools.bench --all --localizers pil_localizer ir_initializer ial_localizer \
-		--profile paper --out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
+	$(PY) -m robot_localization_suite.tools.bench --all \
+		--localizers pil_localizer ir_initializer ial_localizer ima_topo_localizer --profile paper --out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
 		$(if $(wildcard results/summary.json),--compare-with ours=results) $(BENCH_ARGS)
 
 # Only the cross-validation runs: results/cv/summary.md.
