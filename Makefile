@@ -79,7 +79,8 @@ bench: $(STAMP) $(INTERFACES) $(if $(HAVE_CARMEN),$(CV_INDEXES))
 # results/paper/comparison.md (each method's paper and ours rows, bag by bag).
 bench-paper: $(STAMP) $(INTERFACES)
 	$(PY) -m robot_localization_suite.tools.bench --all \
-		--localizers pil_localizer ir_initializer ial_localizer ima_topo_localizer --profile paper --out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
+		--localizers pil_localizer ir_initializer ial_localizer ima_topo_localizer --profile paper \
+		--out results/paper --max-seconds $(BENCH_MAX_SECONDS) --workers $(BENCH_WORKERS) \
 		$(if $(wildcard results/summary.json),--compare-with ours=results) $(BENCH_ARGS)
 
 # Only the cross-validation runs: results/cv/summary.md.

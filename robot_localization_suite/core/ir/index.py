@@ -493,7 +493,7 @@ class IRIndex:
         # Level 1: hit -> pattern, from one representative occurrence of each pattern.
         per_end = settings.pattern_terms_per_end
         lengths, starts, rows = run_length[first], run_start[first], run_row[first]
-        anchors = None if run_anchors is None else run_anchors[first].astype(np.int64)
+        anchors = None if run_anchors is None else run_anchors[first]
         del run_length, run_start, run_position, run_row, run_anchors, first
         ends = 2 if anchors is None else (anchors & 1) + (anchors >> 1 & 1)  # delimited ends of each pattern
         term_offsets = np.zeros(pattern_count + 1, dtype=np.int64)
@@ -505,8 +505,8 @@ class IRIndex:
                                  terms)
         else:
             assert anchors is not None
-            fill_view_terms(fans, views, rows.astype(np.int64), starts.astype(np.int64), lengths.astype(np.int64),
-                            anchors, per_end, divisor, self.term_bins, term_offsets[:-1], terms)
+            fill_view_terms(fans, views, rows, starts, lengths, anchors, per_end, divisor, self.term_bins,
+                            term_offsets[:-1], terms)
         del lengths, starts, rows, anchors
         # Built pattern by pattern, inverted once into the hit -> pattern index.
         blocks = pattern_blocks(pattern_count)

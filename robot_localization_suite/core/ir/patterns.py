@@ -19,6 +19,9 @@ __all__ = ["NO_RETURN", "extract_runs", "pattern_terms", "count_fan_runs", "fill
 
 #: Byte code of a reading with no return within the model's maximum range.
 NO_RETURN = 255
+# FNV-1a 64-bit constants (pattern hashes).
+_FNV_OFFSET = np.uint64(14695981039346656037)
+_FNV_PRIME = np.uint64(1099511628211)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -104,11 +107,9 @@ def _runs_of_row(codes, valid, cap, jump, min_len, circular, starts, lengths, an
 def _fnv_run(codes, start, length, divisor):
     """FNV-1a hash of the binned codes of a circular run (identifies a pattern)."""
     m = codes.shape[0]
-    h = np.uint64(14695981039346656037)
-    prime = np.uint64(1099511628211)
-    h = (h ^ np.uint64(length)) * prime
+    h = (_FNV_OFFSET ^ np.uint64(length)) * _FNV_PRIME
     for k in range(length):
-        h = (h ^ np.uint64(codes[(start + k) % m] // divisor)) * prime
+        h = (h ^ np.uint64(codes[(start + k) % m] // divisor)) * _FNV_PRIME
     return h
 
 
@@ -145,7 +146,7 @@ def fill_fan_runs(fans, cap, jump, min_len, divisor, offsets, out_start, out_len
 def _fnv_view_run(codes, start, length, anchors, divisor):
     """FNV-1a hash of a run of a limited view: its binned codes and which ends are delimited."""
     h = _fnv_run(codes, start, length, divisor)
-    return (h ^ np.uint64(anchors)) * np.uint64(1099511628211)
+    return (h ^ np.uint64(anchors)) * _FNV_PRIME
 
 
 @numba.njit(cache=True, nogil=True)

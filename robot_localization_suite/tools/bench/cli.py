@@ -48,22 +48,22 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     return overrides
 
 
+def _name_and_path(item: str, option: str, form: str) -> tuple[str, Path]:
+    """``NAME=PATH`` of ``option``, both parts non-empty."""
+    name, sep, path = item.partition("=")
+    if not sep or not name or not path:
+        raise ValueError(f"{option} expects {form}, got {item!r}")
+    return name, Path(path)
+
+
 def _parse_params_files(items: Sequence[str]) -> dict[str, Path]:
-    files: dict[str, Path] = {}
-    for item in items:
-        name, sep, path = item.partition("=")
-        if not sep or not name or not path:
-            raise ValueError(f"--params-file expects NAME=PATH, got {item!r}")
-        files[name] = Path(path)
-    return files
+    return dict(_name_and_path(item, "--params-file", "NAME=PATH") for item in items)
 
 
 def _read_comparison(value: str) -> tuple[str, dict[str, Any]]:
     """``LABEL=DIR`` -> the label and DIR/summary.json (read before the runs, so a wrong path fails at once)."""
-    label, sep, directory = value.partition("=")
-    if not sep or not label or not directory:
-        raise ValueError(f"--compare-with wants LABEL=DIR, got {value!r}")
-    path = Path(directory) / "summary.json"
+    label, directory = _name_and_path(value, "--compare-with", "LABEL=DIR")
+    path = directory / "summary.json"
     try:
         return label, json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:

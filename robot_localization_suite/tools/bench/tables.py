@@ -144,7 +144,6 @@ def append_section(out: Path, sub: str) -> None:
         stream.write("\n" + extra)
 
 
-
 _COMPARED = ("correct_rate", "false_localized_rate", "time_to_first_fix_s", "kidnap_recovery_s", "rmse_xy_m",
              "update_ms_median", "peak_rss_mb")
 
