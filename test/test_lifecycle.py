@@ -2,8 +2,7 @@
 
 A node of the test's own offers ``/mute/change_state``, which makes the transition but whose answer
 never arrives (the callback is held until the test ends), and ``/mute/get_state``. The manager must
-learn from ``get_state`` that the node made it (or, still unconfigured, refused it) instead of waiting out its
-timeout.
+learn from ``get_state`` that the node made it, instead of waiting out its timeout.
 """
 
 from __future__ import annotations
@@ -76,6 +75,5 @@ def test_a_transition_whose_answer_is_lost_is_known_by_the_nodes_state(reaches: 
     if reaches:
         assert ok and waited < 8.0, lines  # known from get_state, not from the (lost) answer
         assert any("its answer lost" in line and "'inactive'" in line for line in lines), lines
-    else:  # still unconfigured at two checks, running no transition: refused, known before the timeout
-        assert not ok and waited < 8.0, lines
-        assert any("configure FAILED" in line and "'unconfigured'" in line for line in lines), lines
+    else:  # the node is still unconfigured: no success is made up, the timeout stands
+        assert not ok and any("did not answer within 8 s" in line for line in lines), lines

@@ -21,8 +21,6 @@ __all__ = ["LifecycleManager", "TRANSITIONS"]
 TRANSITIONS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4, "shutdown": 5}
 # Transition label -> the lifecycle_msgs/State id it ends in (unconfigured 1, inactive 2, active 3, finalized 4).
 GOAL_STATES = {"configure": 2, "cleanup": 1, "activate": 3, "deactivate": 2, "shutdown": 4}
-# lifecycle_msgs/State ids from this one up are transition states (configuring, activating, ...).
-_FIRST_TRANSITION_STATE = 10
 
 
 class LifecycleManager:
@@ -30,8 +28,7 @@ class LifecycleManager:
 
     A transition's answer can be lost: a service may answer before its response writer has matched the
     client's reader (Fast DDS, ros2/rmw_fastrtps#842, many nodes starting at once). While waiting, the node's
-    state is asked every ``state_check_s``; a node already in the transition's goal state has made it, and a
-    node found twice running no transition (a primary state other than the goal) has refused it.
+    state is asked every ``state_check_s``; a node already in the transition's goal state has made it.
 
     Args:
         nodes: node names (their services are ``/<name>/change_state``, ``/<name>/get_state``).
@@ -80,7 +77,6 @@ class LifecycleManager:
         with self._lock:
             future: Any = client.call_async(request)
             state: Any = None
-            idle_checks = 0  # consecutive checks that found the node in a primary state other than the goal
             next_check = started + self.state_check_s
             while not future.done():
                 if cancelled() or time.monotonic() > deadline:
@@ -88,17 +84,10 @@ class LifecycleManager:
                     return False
                 self._executor.spin_once(timeout_sec=0.1)
                 if state is not None and state.done():
-                    current = state.result().current_state
-                    lost = f"in {time.monotonic() - started:.2f} s, its answer lost (the node reports {current.label!r})"
-                    if current.id == GOAL_STATES[transition]:
-                        self.log(f"{name}: {transition} done {lost}")
+                    if state.result().current_state.id == GOAL_STATES[transition]:
+                        self.log(f"{name}: {transition} done in {time.monotonic() - started:.2f} s, its answer lost "
+                                 f"(the node reports {state.result().current_state.label!r})")
                         return True
-                    # Ids 1-4 are primary states, 10 and up transitions under way: still in the first state
-                    # at two checks, the node has refused the transition (or the answer would still come).
-                    idle_checks = idle_checks + 1 if current.id < _FIRST_TRANSITION_STATE else 0
-                    if idle_checks >= 2:
-                        self.log(f"{name}: {transition} FAILED {lost}")
-                        return False
                     state = None
                 if state is None and time.monotonic() >= next_check:
                     state = self._state_clients[name].call_async(self._state_request_type())
