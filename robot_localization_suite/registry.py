@@ -121,9 +121,10 @@ class LocalizerPlugin:
         bench_skip: bag-name glob -> reason, pairs ``rls_bench --all`` leaves out.
         bench_skip_global: bag-name glob -> reason, pairs ``rls_bench --all`` leaves out in global mode
             and single-scan global fixes only (tracking mode runs them).
-        bench_params: bag-name glob -> params file in ``config/``, read for those bags instead of
-            ``config/<name>.yaml`` (the first matching glob wins).
+        bench_params: bag-name glob -> params file in ``config/``, read for those bags on top of
+            ``config/<name>.yaml``, as a second ``--params-file`` (the first matching glob wins).
         outputs: extra output topics, for ``--help`` (``"~/boxes (visualization_msgs/MarkerArray)"``).
+        camera_cue: a laser method that also reads camera images when its settings name a ``camera_topomap``.
     """
 
     name: str
@@ -135,10 +136,15 @@ class LocalizerPlugin:
     bench_skip_global: Mapping[str, str] = field(default_factory=dict)
     bench_params: Mapping[str, str] = field(default_factory=dict)
     outputs: tuple[str, ...] = ()
+    camera_cue: bool = False
 
     @property
     def uses_camera(self) -> bool:
         return self.sensor is SensorKind.CAMERA
+
+    def reads_camera_cue(self, settings: Settings) -> bool:
+        """Whether a laser method with these settings also reads camera images (its ``camera_topomap``)."""
+        return self.camera_cue and bool(getattr(settings, "camera_topomap", ""))
 
     def create(self, settings: Settings | None = None) -> Any:
         """A fresh core localizer with these settings (default: the class defaults)."""
@@ -188,8 +194,11 @@ def _create_ial(settings: IALSettings) -> Any:
 
 def _create_hybrid(settings: HybridSettings) -> Any:
     from .core.hybrid.localizer import HybridLocalizer
+    from .core.ima.topomap import load_topomap
 
-    return HybridLocalizer(settings)
+    topomap = (load_topomap(resolve_config_path(settings.camera_topomap, "topomap")) if settings.camera_topomap
+               else None)
+    return HybridLocalizer(settings, topomap=topomap)
 
 
 def _create_ima(settings: ImaTrackerSettings) -> Any:
@@ -249,10 +258,13 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             "The MCL filter of mcl_baseline tracks; PIL's global fix (in the update) and IR's (in a worker thread, "
             "never in the update) propose ranked poses from each scan: the filter starts around the best ones, "
             "gets particles injected around one that explains the scan clearly better for consecutive updates "
-            "(a kidnapping), and is AMBIGUOUS while a candidate elsewhere explains the scan as well. Parameters "
-            "of the three methods are nested under mcl., pil. and ir.",
+            "(a kidnapping), and is AMBIGUOUS while a candidate elsewhere explains the scan as well. With a "
+            "camera_topomap, camera images (IMA place recognition, thesis 003) tell look-alike places apart. "
+            "Parameters of the methods are nested under mcl., pil., ir., ial. and ima.",
             HybridSettings,
             _create_hybrid,
+            bench_params={"office_twins_camera*": "hybrid_localizer_office_twins.yaml"},
+            camera_cue=True,
         ),
         LocalizerPlugin(
             "ima_topo_localizer",
@@ -262,6 +274,7 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             ImaTrackerSettings,
             _create_ima,
             sensor=SensorKind.CAMERA,
+            bench_params={"office_twins_camera*": "ima_topo_localizer_office_twins.yaml"},
             outputs=("~/place (std_msgs/String: the name of the estimated place)",),
         ),
     )

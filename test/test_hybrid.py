@@ -18,9 +18,13 @@ import pytest
 from mcl_test_world import Drive, drive, office_map, pose_error
 
 from robot_localization_suite.core.grid_map import GridMap
+from robot_localization_suite.core.hybrid.camera_cue import CameraCue
 from robot_localization_suite.core.hybrid.localizer import HybridLocalizer, ProposalSource
 from robot_localization_suite.core.hybrid.settings import HybridSettings
 from robot_localization_suite.core.ial.settings import IALSettings
+from robot_localization_suite.core.ima.panorama import panorama_width
+from robot_localization_suite.core.ima.settings import ImaSettings
+from robot_localization_suite.core.ima.topomap import TopologicalMap, TopoNode
 from robot_localization_suite.core.ir.settings import IRSettings
 from robot_localization_suite.core.localizer import Estimate, Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MonteCarloLocalizer
@@ -29,6 +33,7 @@ from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 from robot_localization_suite.core.se2 import compose, relative
 from robot_localization_suite.core.settings import from_params, parameters
+from robot_localization_suite.core.sim.camera import CameraRenderer
 from robot_localization_suite.tools.ial_outlier_case import outlier_case
 
 RESOLUTION = 0.05
@@ -145,13 +150,12 @@ def _corridor_scan(grid_map: GridMap, pose: np.ndarray, stamp: float, range_max:
     return Scan(stamp, angles, ranges, 0.05, range_max)
 
 
-def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then_localized(cache: Path) -> None:
-    corridor = _twin_corridor()
-    range_m = 3.5  # from 5.4 < x < 6.6 neither the truth nor its twin sees the cabinet (or its mirror)
-    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True))  # same on any load
-    hybrid.set_map(corridor)
+def _twin_kidnapping(hybrid: HybridLocalizer, corridor: GridMap, range_m: float,
+                     camera: CameraRenderer | None = None) -> list[tuple[np.ndarray, Estimate]]:
+    """Tracked from beside the cabinet facing east, carried to x = 6.6 facing west (odometry blind to it), then
+    driving west past the cabinet: the (truth, estimate) of every update after the kidnapping. With ``camera``,
+    the image at each step goes in before its scan."""
     rng = np.random.default_rng(7)
-    # tracked from beside the cabinet, facing east; carried to x = 6.6 facing west; drives west past the cabinet
     before = [np.array([1.2 + 0.1 * k, 1.5, 0.0]) for k in range(10)]
     after = [np.array([6.6 - 0.1 * k, 1.5, math.pi]) for k in range(50)]
     truth = before + after
@@ -164,11 +168,22 @@ def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then
     for k, pose in enumerate(truth):
         hybrid.request_nomotion_update()  # an update at every scan: the test counts updates
         hybrid.on_odometry(float(k), odometry[k])
+        if camera is not None:
+            hybrid.on_image(float(k), camera.render(pose))
         estimate = hybrid.on_scan(_corridor_scan(corridor, pose, float(k), range_m, rng))
         assert estimate is not None
         if k >= len(before):
             seen.append((pose, estimate))
     hybrid.close()
+    return seen
+
+
+def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then_localized(cache: Path) -> None:
+    corridor = _twin_corridor()
+    range_m = 3.5  # from 5.4 < x < 6.6 neither the truth nor its twin sees the cabinet (or its mirror)
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True))  # same on any load
+    hybrid.set_map(corridor)
+    seen = _twin_kidnapping(hybrid, corridor, range_m)
 
     def among(candidates: np.ndarray, pose: np.ndarray) -> bool:
         return any(pose_error(c, pose)[0] < 0.5 and pose_error(c, pose)[1] < 0.3 for c in candidates)
@@ -186,6 +201,52 @@ def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then
     late = [(pose, e) for pose, e in seen if pose[0] < 3.0]
     assert late and late[-1][1].status is LocalizerStatus.LOCALIZED
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in late)
+
+
+# -- the camera cue -----------------------------------------------------------------------------------
+CORRIDOR_PLACES = [(x, 1.5) for x in (4.0, 4.6, 5.2, 5.8, 6.4, 7.0, 7.6, 8.2)]  # symmetric about x = 6.1
+
+
+@pytest.fixture(scope="module")
+def corridor_camera() -> tuple[CameraRenderer, TopologicalMap]:
+    """A camera in the twin corridor (its walls textured by where they are, so the twins look different) and
+    the topological map of places along its middle, each a true panorama (column 0 at heading hfov/2)."""
+    camera = CameraRenderer(_twin_corridor(), width=160, height=120, texture_seed=5)
+    width = panorama_width(160, 60.0)
+    nodes = [TopoNode(f"P{k}", x, y, f"P{k}.png", 0.0) for k, (x, y) in enumerate(CORRIDOR_PLACES)]
+    panoramas = [camera.render_panorama(np.array([x, y, 0.0]), width) for x, y in CORRIDOR_PLACES]
+    return camera, TopologicalMap(nodes, 60.0, panoramas)
+
+
+def test_the_camera_cue_favours_the_place_and_heading_it_sees_and_is_neutral_elsewhere(
+        corridor_camera: tuple[CameraRenderer, TopologicalMap]) -> None:
+    camera, topomap = corridor_camera
+    cue = CameraCue(topomap, ImaSettings(), weight=1.0, place_radius=0.0, heading_tolerance=0.5, window_s=3.0)
+    truth = np.array([6.4, 1.5, math.pi])
+    twin = np.array([12.0 - 6.4, 1.5, 0.0])  # the same scan, point-symmetric
+    seen = cue.on_image(0.0, camera.render(truth))
+    at_truth, at_twin, turned, far = cue.log_likelihood(
+        np.array([truth, twin, [6.4, 1.5, 0.0], [1.0, 0.5, 0.0]]), seen)
+    assert at_truth > 0.0 and at_truth > at_twin + 0.1  # the place it sees, over its twin
+    assert turned < at_truth  # the right place, the wrong heading
+    assert far == 0.0  # no place within the median spacing (0.6 m): neither helped nor hurt
+
+
+def test_with_a_camera_a_twin_kidnapping_is_resolved_while_the_scans_still_cannot_tell(
+        cache: Path, corridor_camera: tuple[CameraRenderer, TopologicalMap]) -> None:
+    camera, topomap = corridor_camera
+    corridor = _twin_corridor()
+    range_m = 3.5
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True), topomap=topomap)
+    assert hybrid.wants_images
+    hybrid.set_map(corridor)
+    seen = _twin_kidnapping(hybrid, corridor, range_m, camera)
+    # without the camera never LOCALIZED while x > 5.25 (the test above); with it, LOCALIZED at the truth there
+    twin_part = [(pose, e) for pose, e in seen if pose[0] > 5.25]
+    localized = [(pose, e) for pose, e in twin_part if e.status is LocalizerStatus.LOCALIZED]
+    assert localized, [(round(float(p[0]), 2), e.status.value) for p, e in twin_part]
+    assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in localized)
+    assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in seen if pose[0] < 3.0)
 
 
 # -- proposal sources that are slow or fail --------------------------------------------------------

@@ -59,6 +59,8 @@ def topics_text(plugin: LocalizerPlugin) -> str:
     """The topics and services of a localizer node, for ``--help``."""
     sensor = ("camera/image_raw (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8)" if plugin.uses_camera
               else "scan (sensor_msgs/LaserScan), map (nav_msgs/OccupancyGrid)")
+    if plugin.camera_cue:
+        sensor += ",\n       camera/image_raw (sensor_msgs/Image, with a camera_topomap)"
     lines = [
         f"  in:  {sensor}, odom (nav_msgs/Odometry) or /tf (odom_source), /tf_static (laser mount),",
         "       initialpose (geometry_msgs/PoseWithCovarianceStamped, in global_frame_id)",
@@ -327,6 +329,9 @@ class LocalizerNode(LifecycleNode):
             self.sensor_sub = sub(LaserScan, "scan", guarded(self, self._on_scan, "scan update"),
                                   SENSOR_INPUT_QOS)
             entities.append(sub(OccupancyGrid, "map", guarded(self, self._on_map, "map"), MAP_QOS))
+            if self.plugin.reads_camera_cue(self.settings):
+                entities.append(sub(Image, "camera/image_raw", guarded(self, self._on_camera_cue, "image cue"),
+                                    SENSOR_INPUT_QOS))
         entities.append(self.sensor_sub)
         if tf.TFMessage is not None:
             entities.append(sub(tf.TFMessage, "/tf_static", guarded(self, self._on_tf_static, "/tf_static"),
@@ -458,6 +463,13 @@ class LocalizerNode(LifecycleNode):
             return
         assert self.adapter is not None
         self._when_odometry_reaches(msg, self.adapter.on_image_msg)
+
+    def _on_camera_cue(self, msg: Image) -> None:
+        """An image for a laser method's camera cue (the hybrid's): used at once, it weighs what the scans estimate."""
+        if not self._accepting("camera", "image") or self._busy("images"):
+            return
+        assert self.adapter is not None
+        self.adapter.on_image_msg(msg)
 
     def _when_odometry_reaches(self, msg: Any, update: Callable[[Any], AdapterOutput | None]) -> None:
         """Update with ``msg`` once odometry reaches its stamp, as nav2_amcl's tf message filter waits for it.

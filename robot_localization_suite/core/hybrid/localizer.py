@@ -14,6 +14,11 @@ counted over the filter's ``effective_beams`` as it weighs its particles; the pr
 * as the ambiguity signal: a candidate elsewhere that explains the scan as well as the estimate
   makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
 
+With a camera and a topological map of the places it should tell apart (``camera_topomap``), each
+image is one more measurement (:mod:`.camera_cue`, IMA of thesis 003): it weighs the particles, adds to
+the recovery's evidence, and counts in the AMBIGUOUS verdict, so look-alike places the laser cannot
+tell apart are told apart by what they look like.
+
 Notes (why each mechanism, measured figures): docs/hybrid.md.
 """
 
@@ -28,13 +33,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import ImageError
 from ..grid_map import GridMap
+from ..ima.topomap import TopologicalMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
 from ..mcl.localizer import MonteCarloLocalizer
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
+from .camera_cue import CameraCue, SeenImage
 from .integrity import IntegrityMonitor
 from .proposals import Proposal, ProposalRunner, ProposalSource
 from .settings import HybridSettings
@@ -51,10 +59,11 @@ class HybridLocalizer:
         settings: the hybrid's settings (the filter's, PIL's and IR's nested in them).
         sources: proposal sources instead of PIL (in the update) and IR (in a worker), e.g. a test's.
         log: ``log(level, text)`` for failing sources; default: the module's logger.
+        topomap: the places of ``settings.camera_topomap``, loaded (the camera cue is on only with one).
     """
 
     def __init__(self, settings: HybridSettings | None = None, *, sources: Sequence[ProposalSource] | None = None,
-                 log: Callable[[str, str], None] | None = None) -> None:
+                 log: Callable[[str, str], None] | None = None, topomap: TopologicalMap | None = None) -> None:
         self.settings = settings or HybridSettings()
         s = self.settings
         self.mcl = MonteCarloLocalizer(s.mcl)
@@ -72,6 +81,9 @@ class HybridLocalizer:
         self.monitor = (IntegrityMonitor(s.ial, s.integrity_margin_xy, s.integrity_margin_yaw, s.ambiguity_distance)
                         if s.integrity_monitor else None)
         self.runner = ProposalRunner(self.sources, log, wait=s.wait_for_workers)
+        self.camera = None if topomap is None else CameraCue(
+            topomap, s.ima, weight=s.camera_weight, place_radius=s.camera_place_radius,
+            heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
         self.grid_map: GridMap | None = None
         self._seed_pending = True
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
@@ -91,6 +103,8 @@ class HybridLocalizer:
             self.monitor.set_map(grid_map)
         self.runner.forget()
         self._waiting = []
+        if self.camera is not None:
+            self.camera.forget()
         self._restart()
 
     def prepare(self, scan: Scan) -> None:
@@ -129,6 +143,30 @@ class HybridLocalizer:
     def close(self) -> None:
         """Stop the proposal workers."""
         self.runner.close()
+
+    @property
+    def wants_images(self) -> bool:
+        """Whether camera images are used (a ``camera_topomap`` was given)."""
+        return self.camera is not None
+
+    def on_image(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
+        """A camera image, with a ``camera_topomap``: matched against its places, then every particle weighed by
+        it (moved to the image's time by the odometry). Never an estimate: the filter updates on scans.
+
+        Raises:
+            ImageError: the image cannot be read (the next one is tried).
+        """
+        if self.camera is None:
+            return None
+        try:
+            seen = self.camera.on_image(stamp, image)
+        except ValueError as exc:
+            raise ImageError(str(exc)) from exc
+        if self.grid_map is not None:
+            # the particles (and the filter's rivals) are at the filter's last update
+            reference = self.mcl.odometry.reference
+            self.mcl.weigh(lambda poses: self._camera_evidence(poses, reference, [seen]))
+        return None
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         """Proposals, then the filter update, then the verdict; None when the filter has no update due."""
@@ -233,6 +271,11 @@ class HybridLocalizer:
         predicted = compose(last.pose, delta)
         advantage = np.nan_to_num(
             self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)
+        if self.camera is not None:  # each image once in the running sum
+            camera = self._camera_evidence(np.vstack([predicted[None, :], pool]), odom,
+                                           [seen for seen in self.camera.take_new()
+                                            if seen.stamp >= scan.stamp - self.settings.camera_window])
+            advantage = advantage + (camera[1:] - camera[0])
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
         weights = self.mcl.weights
@@ -258,6 +301,18 @@ class HybridLocalizer:
                                                    s.proposal_std_xy, s.proposal_std_yaw)
         self._evidence, self._better_count = 0.0, 0
         return notes
+
+    def _camera_evidence(self, poses: NDArray[np.float64], odom: NDArray[np.float64] | None,
+                         images: Sequence[SeenImage]) -> NDArray[np.float64]:
+        """``(N,)`` summed camera log-likelihood of poses at odometry ``odom`` for ``images``, each pose moved to
+        an image's time by the odometry (unmoved where the odometry does not reach)."""
+        assert self.camera is not None
+        total = np.zeros(len(poses))
+        for seen in images:
+            then = self.mcl.odometry.at(seen.stamp)
+            moved = poses if odom is None or then is None else compose(poses, relative(odom, then))
+            total += self.camera.log_likelihood(moved, seen)
+        return total
 
     def _near(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
         s = self.settings
@@ -291,7 +346,11 @@ class HybridLocalizer:
         s = self.settings
         if len(pool) == 0:
             return estimate
-        scores = self._log_odds(self.mcl.scan_fit(np.vstack([estimate.pose[None, :], pool]), scan))
+        poses = np.vstack([estimate.pose[None, :], pool])
+        scores = self._log_odds(self.mcl.scan_fit(poses, scan))
+        if self.camera is not None:
+            scores = scores + self._camera_evidence(poses, self.mcl.odometry.at(scan.stamp),
+                                                    self.camera.window(scan.stamp))
         own, others = scores[0], scores[1:]
         if not np.isfinite(own):
             return estimate

@@ -1,7 +1,7 @@
 """Every parameter of ``hybrid_localizer``: its own, and those of the methods it is made of.
 
 The MCL filter, PIL and IR keep their parameters in their own settings classes; here they are
-nested under the prefixes ``mcl.``, ``pil.``, ``ir.`` and ``ial.`` (``mcl.max_particles``). The hybrid's own
+nested under the prefixes ``mcl.``, ``pil.``, ``ir.``, ``ial.`` and ``ima.`` (``mcl.max_particles``). The hybrid's own
 parameters say when the global proposals are asked for and what they do to the filter. Why each
 mechanism and default: docs/hybrid.md.
 """
@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 from ..ial.settings import IALSettings
+from ..ima.settings import ImaSettings
 from ..ir.settings import IRSettings
 from ..mcl.settings import MclSettings
 from ..pil.settings import PilSettings
@@ -34,6 +35,7 @@ class HybridSettings(Settings):
     pil: PilSettings = nested(PilSettings, prefix="pil")
     ir: IRSettings = nested(IRSettings, prefix="ir")
     ial: IALSettings = nested(IALSettings, prefix="ial")
+    ima: ImaSettings = nested(ImaSettings, prefix="ima")
 
     pil_every_updates: int = setting(
         1, "PIL's global fix (cheap) runs at every this many filter updates; 0: never", low=0,
@@ -90,8 +92,8 @@ class HybridSettings(Settings):
         "same bag then gives the same output on any machine and load, and an update's time includes the wait "
         "(docs/hybrid.md)")
     integrity_monitor: bool = setting(
-        False, "(off by default: IAL's kernels hold the Python lock, so a global start blocks updates for seconds; "
-        "docs/hybrid.md) IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
+        False, "(off by default: on two cores IAL's global solves take the cores from the updates, and wide boxes "
+        "hold LOCALIZED back; docs/hybrid.md) IAL's boxes (ial.*: their declared range_error and max_outliers) as a monitor: an estimate outside "
         "every box, or boxes farther apart than ambiguity_distance, is not LOCALIZED; off by itself on a map with "
         "unknown space a beam can reach and while IAL has no box")
     integrity_margin_xy: float = setting(
@@ -99,3 +101,21 @@ class HybridSettings(Settings):
         high=100.0)
     integrity_margin_yaw: float = setting(
         0.15, "... and this far outside its heading interval", unit="rad", low=0.0, high=math.pi)
+    camera_topomap: str = setting(
+        "", "topological map YAML (build_topomap) whose places the camera tells apart; empty: no camera. With one, "
+        "images on camera/image_raw weigh the particles and the candidates by IMA place recognition (ima.*, "
+        "thesis 003), which breaks the laser's ties between look-alike places; relative: the working directory, "
+        "then the package's config/", read_only=True)
+    camera_weight: float = setting(
+        1.0, "exponent of an image's IMA match at a place as its likelihood there (1: as thesis 003 eq. 3.21)",
+        low=0.0, high=100.0)
+    camera_place_radius: float = setting(
+        0.0, "a pose is seen by the camera cue when a place of the topological map lies within this; 0: the median "
+        "spacing of its places", unit="m", low=0.0, high=100.0)
+    camera_heading_tolerance: float = setting(
+        0.5, "the heading IMA finds at that place must agree with the pose's within this, else the image counts "
+        "as unlike the place", unit="rad", low=0.0, low_open=True, high=math.pi)
+    camera_window: float = setting(
+        1.0, "the images of this long before a scan count in its AMBIGUOUS verdict (each image counts once in the "
+        "recovery's evidence and in the particles' weights); longer holds look-alikes apart with more images but "
+        "also counts images from before a kidnapping", unit="s", low=0.0, high=3600.0)

@@ -61,6 +61,16 @@ class TopologicalMap:
     def heading_refs(self) -> NDArray[np.float64]:
         return np.array([node.heading_ref for node in self.nodes], dtype=np.float64)
 
+    @property
+    def spacing(self) -> float:
+        """Median distance from each place to its nearest other [m] (1 m with a single place)."""
+        xy = self.positions
+        if len(xy) < 2:
+            return 1.0
+        distance = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        np.fill_diagonal(distance, math.inf)
+        return float(np.median(distance.min(axis=1)))
+
 
 def _topomap_field(meta: dict, name: str, path: Path, where: str = "") -> object:
     if name not in meta:

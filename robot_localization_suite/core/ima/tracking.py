@@ -126,8 +126,7 @@ class ImaTopoLocalizer:
         self.bank = PanoramaBank(topomap.panoramas, topomap.hfov_deg, topomap.heading_refs, self.settings.ima)
         self.node_xy = topomap.positions
         self.names = topomap.names
-        spacing = self._node_spacing(self.node_xy)
-        self._position_sigma = 0.5 * spacing
+        self._position_sigma = 0.5 * topomap.spacing
         # The odometry; the reference is the odometry at the last run of Code 3.1.
         self.odometry = OdometryGate(self.settings.min_translation, self.settings.min_rotation)
         self.reinitialize()
@@ -137,14 +136,6 @@ class ImaTopoLocalizer:
         """The latest odometry pose (the origin until the first one)."""
         latest = self.odometry.latest
         return np.zeros(3) if latest is None else latest
-
-    @staticmethod
-    def _node_spacing(xy: NDArray[np.float64]) -> float:
-        if len(xy) < 2:
-            return 1.0
-        distance = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-        np.fill_diagonal(distance, np.inf)
-        return float(np.median(distance.min(axis=1)))
 
     # -- CameraLocalizer -------------------------------------------------------------------
     def reinitialize(self) -> None:

@@ -20,6 +20,7 @@ Notes (choices, departures, status, measured figures): docs/mcl.md.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -255,6 +256,24 @@ class MonteCarloLocalizer:
         self.particles = self._draw_around(poses, weights, max(int(count), 1), std_xy, std_yaw)
         self.log_weights = np.zeros(len(self.particles))
         self._reset_filter_state()
+
+    def weigh(self, log_likelihood: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> None:
+        """Another sensor's measurement (a composite's cue, e.g. the hybrid's camera): ``log_likelihood`` maps poses
+        ``(M, 3)`` to ``(M,)`` logs. Each particle's weight is multiplied by its likelihood, and each rival's odds
+        by the measurement's Bayes factor against the cloud, as a scan weighs them; the next update's estimate,
+        rivals and resampling follow."""
+        if len(self.particles) == 0:
+            return
+
+        def finite(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+            values = np.asarray(log_likelihood(poses), dtype=np.float64).reshape(-1)
+            return np.nan_to_num(values, nan=0.0, posinf=0.0, neginf=0.0)
+
+        values = finite(self.particles)
+        with np.errstate(divide="ignore"):
+            cloud_log_predictive = float(logsumexp(np.log(self.weights) + values))
+        self.log_weights = self.log_weights + values
+        self.rivals.weigh_cue(finite, cloud_log_predictive)
 
     def inject_around(self, poses: NDArray[np.float64], weights: NDArray[np.float64], fraction: float,
                       std_xy: float, std_yaw: float) -> int:

@@ -96,6 +96,14 @@ class RivalTracker:
                 kept.append(rival)
         self.rivals = kept
 
+    def weigh_cue(self, log_likelihood: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                  cloud_log_predictive: float) -> None:
+        """Multiply each rival's odds by another sensor's Bayes factor (``log_likelihood`` of poses, untempered;
+        ``cloud_log_predictive`` the cloud's); the next scan rules out or crowns them as usual."""
+        for rival in self.rivals:
+            values = log_likelihood(rival.samples)
+            rival.log_odds += float(logsumexp(values)) - math.log(len(values)) - cloud_log_predictive
+
     def consider(self, means: NDArray[np.float64], weights: NDArray[np.float64],
                  members: list[NDArray[np.float64]], member_weights: list[NDArray[np.float64]],
                  best_pose: NDArray[np.float64], best_weight: float, rng: np.random.Generator) -> None:

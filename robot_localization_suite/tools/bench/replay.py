@@ -305,8 +305,17 @@ def replay_localizer(
     def on_reinitialize(_msg: Any) -> None:
         adapter.reinitialize()
 
+    def on_camera_cue(msg: Any) -> None:  # images as one more cue of a laser method: no estimate of their own
+        try:
+            adapter.on_image_msg(msg)
+        except Exception as exc:  # noqa: BLE001
+            record.update_errors += 1
+            LOG.error("%s image failed: %s: %s", prefix, type(exc).__name__, exc)
+
     handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor, MAP_TOPIC: on_map,
                                                  REINITIALIZE_TOPIC: on_reinitialize}
+    if spec.camera_cue and not spec.uses_camera:
+        handlers[IMAGE_TOPIC] = on_camera_cue
     run_bag = None if record_dir is None else _RunBag(Path(record_dir) / f"{reference.name}_{spec.name}_{mode}",
                                                          spec.name, truth, reference.kidnap_indices)
     try:

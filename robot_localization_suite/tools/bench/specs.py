@@ -18,7 +18,7 @@ from typing import Any
 from ... import registry
 from ...core.errors import SettingsError
 from ...core.scan import LaserMount
-from ...core.settings import parameters, unknown_params
+from ...core.settings import parameters, read_params_file, unknown_params
 
 __all__ = ["LocalizerSpec", "registry_spec"]
 
@@ -32,6 +32,7 @@ class LocalizerSpec:
         factory: builds a fresh core localizer (must be picklable for child processes,
             e.g. a module-level function or ``functools.partial`` of one).
         uses_camera: fed ``/camera/image_raw`` instead of ``/scan``.
+        camera_cue: fed ``/camera/image_raw`` besides ``/scan`` (the hybrid with a ``camera_topomap``).
         mount: laser pose in the base frame (the adapter's mounting offset).
         skip: bag-name glob -> reason, pairs ``--all`` leaves out.
         skip_global: the same, in global mode and global fixes only.
@@ -43,6 +44,7 @@ class LocalizerSpec:
     name: str
     factory: Callable[[], Any]
     uses_camera: bool = False
+    camera_cue: bool = False
     mount: LaserMount = field(default_factory=LaserMount)
     skip: Mapping[str, str] = field(default_factory=dict)
     skip_global: Mapping[str, str] = field(default_factory=dict)
@@ -77,7 +79,8 @@ def registry_spec(
     """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``.
 
     Bags matching the plugin's ``bench_params`` globs get a spec whose settings come from that
-    params file instead (``overrides`` still on top), reached with :meth:`LocalizerSpec.for_bag`.
+    params file read on top of the packaged one (as a second ``--params-file``; ``overrides`` still on
+    top), reached with :meth:`LocalizerSpec.for_bag`.
     ``params_file`` (``rls_bench --params-file``, ``--profile``): this file for every bag instead.
 
     Raises:
@@ -89,13 +92,18 @@ def registry_spec(
     if unknown:
         raise SettingsError(f"{name} has no parameter {', '.join(map(repr, unknown))} (see {name} --help)")
 
-    def spec(params_file: str | Path | None) -> LocalizerSpec:
+    def spec(params_file: str | Path | None, layered: bool = False) -> LocalizerSpec:
         path = registry.config_dir() / params_file if params_file is not None else None
-        node_settings, settings = plugin.load_settings(overrides, params_file=path)
+        values = dict(overrides or {})
+        if layered and path is not None:  # a bag's file on top of the packaged one, as two --params-file
+            values = {**read_params_file(path, name), **values}
+            path = None
+        node_settings, settings = plugin.load_settings(values, params_file=path)
         return LocalizerSpec(
             name=name,
             factory=functools.partial(_plugin_factory, name, settings),
             uses_camera=plugin.uses_camera,
+            camera_cue=plugin.reads_camera_cue(settings),
             mount=node_settings.mount,
             skip=dict(plugin.bench_skip),
             skip_global=dict(plugin.bench_skip_global),
@@ -108,5 +116,6 @@ def registry_spec(
         path = Path(params_file).resolve()
         shown = path.name if path.parent == registry.config_dir().resolve() else str(params_file)
         return dataclasses.replace(spec(path), params=shown)
-    per_bag = {pattern: spec(file) for pattern, file in plugin.bench_params.items()}
+    per_bag = {pattern: dataclasses.replace(spec(file, layered=True), params=file)
+               for pattern, file in plugin.bench_params.items()}
     return dataclasses.replace(spec(None), per_bag=per_bag)
