@@ -406,3 +406,27 @@ def test_the_integrity_monitor_switches_itself_off_where_a_beam_can_end_in_unkno
         last = estimate or last
     hybrid.close()
     assert last is not None and last.details["integrity"] == "on" and last.status is LocalizerStatus.LOCALIZED
+
+
+@pytest.mark.parametrize("topomap", ["", "topomaps/office_twins/topomap.yaml"])
+def test_the_hybrid_node_reads_camera_images_only_with_a_camera_topomap(topomap: str) -> None:
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+    from robot_localization_suite.registry import plugin
+
+    rclpy.init(args=["hybrid_localizer"])
+    try:
+        node = LocalizerNode(plugin("hybrid_localizer"),
+                             parameter_overrides=[Parameter("camera_topomap", value=topomap)])
+        try:
+            node.trigger_configure()
+            topics = {subscription.topic_name for subscription in node.subscriptions}
+            assert "/scan" in topics
+            assert ("/camera/image_raw" in topics) == bool(topomap), topics
+            assert node.localizer.wants_images == bool(topomap)
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
