@@ -64,14 +64,26 @@ class CameraCue:
         self.recent.clear()
         self._unused = []
 
-    def on_image(self, stamp: float, image: ArrayLike) -> SeenImage:
-        """Match ``image`` against every place and keep it; images older than ``window_s`` before it are dropped."""
+    def match(self, stamp: float, image: ArrayLike) -> SeenImage:
+        """IMA of ``image`` against every place (reads only the panoramas: safe in a worker thread).
+
+        Raises:
+            ValueError: the image cannot be read.
+        """
         found = self.bank.match(image)
-        seen = SeenImage(float(stamp), np.log(np.maximum(found.match, _LEAST_MATCH)), found.heading)
+        return SeenImage(float(stamp), np.log(np.maximum(found.match, _LEAST_MATCH)), found.heading)
+
+    def add(self, seen: SeenImage) -> None:
+        """Keep a matched image; images older than ``window_s`` before it are dropped."""
         self.recent.append(seen)
         while self.recent and self.recent[0].stamp < seen.stamp - self.window_s:
             self.recent.popleft()
         self._unused.append(seen)
+
+    def on_image(self, stamp: float, image: ArrayLike) -> SeenImage:
+        """:meth:`match` then :meth:`add`."""
+        seen = self.match(stamp, image)
+        self.add(seen)
         return seen
 
     def window(self, stamp: float) -> list[SeenImage]:

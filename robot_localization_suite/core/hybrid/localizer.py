@@ -15,18 +15,21 @@ counted over the filter's ``effective_beams`` as it weighs its particles; the pr
   makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
 
 With a camera and a topological map of the places it should tell apart (``camera_topomap``), each
-image is one more measurement (:mod:`.camera_cue`, IMA of thesis 003): it weighs the particles, adds to
-the recovery's evidence, and counts in the AMBIGUOUS verdict, so look-alike places the laser cannot
-tell apart are told apart by what they look like.
+image is one more measurement (:mod:`.camera_cue`, IMA of thesis 003, matched in a worker thread): it
+weighs the particles, adds to the recovery's evidence, and counts in the AMBIGUOUS verdict, so
+look-alike places the laser cannot tell apart are told apart by what they look like.
 
 Notes (why each mechanism, measured figures): docs/hybrid.md.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import replace
 from typing import Any
 
@@ -35,6 +38,7 @@ from numpy.typing import NDArray
 
 from ..errors import ImageError
 from ..grid_map import GridMap
+from ..ima.images import to_grey
 from ..ima.topomap import TopologicalMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
@@ -44,7 +48,7 @@ from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
 from .camera_cue import CameraCue, SeenImage
 from .integrity import IntegrityMonitor
-from .proposals import Proposal, ProposalRunner, ProposalSource
+from .proposals import Proposal, ProposalRunner, ProposalSource, in_thread, power_of_ten
 from .settings import HybridSettings
 
 __all__ = ["HybridSettings", "HybridLocalizer", "ProposalSource"]
@@ -84,6 +88,8 @@ class HybridLocalizer:
         self.camera = None if topomap is None else CameraCue(
             topomap, s.ima, weight=s.camera_weight, place_radius=s.camera_place_radius,
             heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
+        self._images: deque[Future[SeenImage]] = deque()  # images being matched, oldest first
+        self._image_errors = 0
         self.grid_map: GridMap | None = None
         self._seed_pending = True
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
@@ -105,6 +111,7 @@ class HybridLocalizer:
         self._waiting = []
         if self.camera is not None:
             self.camera.forget()
+            self._images.clear()
         self._restart()
 
     def prepare(self, scan: Scan) -> None:
@@ -150,8 +157,9 @@ class HybridLocalizer:
         return self.camera is not None
 
     def on_image(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
-        """A camera image, with a ``camera_topomap``: matched against its places, then every particle weighed by
-        it (moved to the image's time by the odometry). Never an estimate: the filter updates on scans.
+        """A camera image, with a ``camera_topomap``: matched against its places in a worker thread (never in the
+        tracking update), then used at the next scan (:meth:`_take_images`). Never an estimate: the filter updates
+        on scans.
 
         Raises:
             ImageError: the image cannot be read (the next one is tried).
@@ -159,18 +167,17 @@ class HybridLocalizer:
         if self.camera is None:
             return None
         try:
-            seen = self.camera.on_image(stamp, image)
+            grey = to_grey(image)
         except ValueError as exc:
             raise ImageError(str(exc)) from exc
-        if self.grid_map is not None:
-            # the particles (and the filter's rivals) are at the filter's last update
-            reference = self.mcl.odometry.reference
-            self.mcl.weigh(lambda poses: self._camera_evidence(poses, reference, [seen]))
+        camera = self.camera
+        self._images.append(in_thread("rls-hybrid-camera", lambda: camera.match(stamp, grey)))
         return None
 
     def on_scan(self, scan: Scan) -> Estimate | None:
         """Proposals, then the filter update, then the verdict; None when the filter has no update due."""
         self._waiting.extend(self.runner.collect())
+        self._take_images()
         if self.grid_map is None:
             return self.mcl.on_scan(scan)
         if self.monitor is not None:
@@ -207,6 +214,25 @@ class HybridLocalizer:
         return estimate
 
     # -- internals --------------------------------------------------------------------------
+    def _take_images(self) -> None:
+        """The images matched since the last scan, in order (all of them with ``wait_for_workers``): each kept for
+        the verdict and the recovery, and every particle and rival weighed by it (moved to its time)."""
+        camera = self.camera
+        while camera is not None and self._images and (self._images[0].done() or self.settings.wait_for_workers):
+            try:
+                seen = self._images.popleft().result()
+            except Exception as exc:  # noqa: BLE001 - a bad image is skipped, the tracking goes on
+                self._image_errors += 1
+                if power_of_ten(self._image_errors):
+                    _LOG.warning("hybrid: image matching failed (%d times so far), skipped: %s: %s",
+                                 self._image_errors, type(exc).__name__, exc)
+                continue
+            camera.add(seen)
+            if self.grid_map is not None:
+                # the particles (and the filter's rivals) are at the filter's last update
+                self.mcl.weigh(functools.partial(self._camera_evidence, odom=self.mcl.odometry.reference,
+                                                 images=[seen]))
+
     def _restart(self) -> None:
         self._seed_pending = True
         self._better_count, self._evidence = 0, 0.0

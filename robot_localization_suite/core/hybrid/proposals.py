@@ -15,6 +15,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,9 +23,10 @@ from numpy.typing import NDArray
 from ..localizer import Estimate
 from ..scan import Scan
 
-__all__ = ["ProposalSource", "Proposal", "ProposalRunner"]
+__all__ = ["ProposalSource", "Proposal", "ProposalRunner", "in_thread", "power_of_ten"]
 
 _LOG = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -114,7 +116,7 @@ class ProposalRunner:
             proposal = self._proposal(state, scan.stamp, estimate)
             return found + ([proposal] if proposal is not None else [])
         state.future_stamp, state.future_generation = scan.stamp, self._generation
-        state.future = _start(f"rls-hybrid-{name}", state.source.fix, scan)
+        state.future = in_thread(f"rls-hybrid-{name}", lambda: state.source.fix(scan))
         return found
 
     def collect(self) -> list[Proposal]:
@@ -165,18 +167,18 @@ class ProposalRunner:
     def _failed(self, state: _SourceState, exc: Exception) -> None:
         state.errors += 1
         state.last_error = f"{type(exc).__name__}: {exc}"
-        if _power_of_ten(state.errors):
+        if power_of_ten(state.errors):
             self._log("warn", f"proposal source {state.source.name} failed ({state.errors} times so far), skipped: "
                       f"{state.last_error}")
 
 
-def _start(name: str, fix: Callable[[Scan], Estimate], scan: Scan) -> Future[Estimate]:
-    """``fix(scan)`` in a daemon thread of its own (a query still running never holds up the process' exit)."""
-    future: Future[Estimate] = Future()
+def in_thread(name: str, work: Callable[[], T]) -> Future[T]:
+    """``work()`` in a daemon thread of its own (a query still running never holds up the process' exit)."""
+    future: Future[T] = Future()
 
     def run() -> None:
         try:
-            future.set_result(fix(scan))
+            future.set_result(work())
         except BaseException as exc:  # noqa: BLE001 - handed to whoever takes the result
             future.set_exception(exc)
 
@@ -185,7 +187,8 @@ def _start(name: str, fix: Callable[[Scan], Estimate], scan: Scan) -> Future[Est
     return future
 
 
-def _power_of_ten(count: int) -> bool:
+def power_of_ten(count: int) -> bool:
+    """1, 10, 100...: when a repeated failure is logged (a throttle without a clock)."""
     while count >= 10 and count % 10 == 0:
         count //= 10
     return count == 1
