@@ -49,7 +49,7 @@ from .tour import write_tour
 
 __all__ = ["main"]
 
-DEFAULT_SCENARIO = "lab_camera"  # the one scenario with a camera: every localizer, ima_topo_localizer too
+DEFAULT_SCENARIO = "lab_camera"  # a scenario with a camera and its topological map: every localizer, ima_topo_localizer too
 MONITOR = "rls_soak"  # this process (the monitor) in the tables
 # Inputs stamped this close to the newest scan are not counted: they may still be in a node's hands.
 _COUNT_MARGIN_S = 2.0
