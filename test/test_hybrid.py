@@ -408,6 +408,28 @@ def test_the_integrity_monitor_switches_itself_off_where_a_beam_can_end_in_unkno
     assert last is not None and last.details["integrity"] == "on" and last.status is LocalizerStatus.LOCALIZED
 
 
+
+def test_a_bad_image_is_refused_naming_its_shape_and_the_tracking_goes_on(
+        cache: Path, corridor_camera: tuple[CameraRenderer, TopologicalMap]) -> None:
+    from robot_localization_suite.core.errors import ImageError
+
+    camera, topomap = corridor_camera
+    corridor = _twin_corridor()
+    hybrid = HybridLocalizer(_settings(cache, max_range=3.5, wait_for_workers=True), topomap=topomap)
+    hybrid.set_map(corridor)
+    pose = np.array([2.0, 1.5, 0.0])
+    hybrid.set_initial_pose(pose, TIGHT)
+    hybrid.on_odometry(0.0, np.zeros(3))
+    with pytest.raises(ImageError, match=r"\(120, 160, 2\)"):
+        hybrid.on_image(0.0, np.zeros((120, 160, 2), dtype=np.uint8))
+    with pytest.raises(ImageError, match="non-finite"):
+        hybrid.on_image(0.0, np.full((120, 160), np.nan))
+    hybrid.on_image(0.0, camera.render(pose))
+    hybrid.request_nomotion_update()
+    estimate = hybrid.on_scan(_corridor_scan(corridor, pose, 0.0, 3.5, np.random.default_rng(1)))
+    hybrid.close()
+    assert estimate is not None and pose_error(estimate.pose, pose)[0] < 0.3
+
 @pytest.mark.parametrize("topomap", ["", "topomaps/office_twins/topomap.yaml"])
 def test_the_hybrid_node_reads_camera_images_only_with_a_camera_topomap(topomap: str) -> None:
     rclpy = pytest.importorskip("rclpy")
