@@ -194,11 +194,12 @@ def _create_ial(settings: IALSettings) -> Any:
 
 def _create_hybrid(settings: HybridSettings) -> Any:
     from .core.hybrid.localizer import HybridLocalizer
-    from .core.ima.topomap import load_topomap
 
-    topomap = (load_topomap(resolve_config_path(settings.camera_topomap, "topomap")) if settings.camera_topomap
-               else None)
-    return HybridLocalizer(settings, topomap=topomap)
+    if not settings.camera_topomap:
+        return HybridLocalizer(settings)
+    from .core.ima.topomap import load_topomap  # OpenCV: only a hybrid with a camera loads it
+
+    return HybridLocalizer(settings, topomap=load_topomap(resolve_config_path(settings.camera_topomap, "topomap")))
 
 
 def _create_ima(settings: ImaTrackerSettings) -> Any:

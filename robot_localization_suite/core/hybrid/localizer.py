@@ -31,25 +31,26 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ImageError
 from ..grid_map import GridMap
-from ..ima.images import to_grey
-from ..ima.topomap import TopologicalMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
 from ..mcl.localizer import MonteCarloLocalizer
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
-from .camera_cue import CameraCue, SeenImage
 from .integrity import IntegrityMonitor
 from .proposals import Proposal, ProposalRunner, ProposalSource, in_thread, power_of_ten
 from .settings import HybridSettings
+
+if TYPE_CHECKING:  # the camera's modules load OpenCV: only a hybrid with a camera imports them
+    from ..ima.topomap import TopologicalMap
+    from .camera_cue import CameraCue, SeenImage
 
 __all__ = ["HybridSettings", "HybridLocalizer", "ProposalSource"]
 
@@ -85,9 +86,12 @@ class HybridLocalizer:
         self.monitor = (IntegrityMonitor(s.ial, s.integrity_margin_xy, s.integrity_margin_yaw, s.ambiguity_distance)
                         if s.integrity_monitor else None)
         self.runner = ProposalRunner(self.sources, log, wait=s.wait_for_workers)
-        self.camera = None if topomap is None else CameraCue(
-            topomap, s.ima, weight=s.camera_weight, place_radius=s.camera_place_radius,
-            heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
+        self.camera: CameraCue | None = None
+        if topomap is not None:
+            from .camera_cue import CameraCue
+
+            self.camera = CameraCue(topomap, s.ima, weight=s.camera_weight, place_radius=s.camera_place_radius,
+                                    heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
         self._images: deque[Future[SeenImage]] = deque()  # images being matched, oldest first
         self._image_errors = 0
         self.grid_map: GridMap | None = None
@@ -166,6 +170,8 @@ class HybridLocalizer:
         """
         if self.camera is None:
             return None
+        from ..ima.images import to_grey
+
         try:
             grey = to_grey(image)
         except ValueError as exc:
