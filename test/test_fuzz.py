@@ -135,7 +135,8 @@ OVERRIDES: dict[str, dict[str, Any]] = {
                          "seed_particles": 500, "pil.show_progress": False, "pil.max_range": RANGE_MAX,
                          "ir.grid_resolution": 0.1, "ir.angular_resolution": math.radians(2.0),
                          "ir.heading_step": math.radians(10.0), "ir.step1_positions": 150,
-                         "ir.refine_candidates": 100, "ir.progress": False},
+                         "ir.refine_candidates": 100, "ir.progress": False,
+                         "wait_for_workers": True},  # IR's answers at the same updates whatever the load
 }
 EXTRAS = {"ial_localizer": IAL_BOXES, "ima_topo_localizer": IMA_PLACE}
 # How many generated cases each localizer runs (a case: a fresh localizer, normal steps, the fuzz, normal steps).
