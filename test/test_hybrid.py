@@ -247,6 +247,7 @@ def test_with_a_camera_a_twin_kidnapping_is_resolved_while_the_scans_still_canno
     assert localized, [(round(float(p[0]), 2), e.status.value) for p, e in twin_part]
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in localized)
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in seen if pose[0] < 3.0)
+    assert seen[-1][1].details["camera_images"] == len(seen) + 10 and seen[-1][1].details["camera_image_errors"] == 0
 
 
 # -- proposal sources that are slow or fail --------------------------------------------------------

@@ -192,10 +192,17 @@ def replay_rate(bag_dir: Path, localizer: str, mode: str = "global") -> dict[str
     return fields
 
 
-def _params_file(localizer: str) -> Path:
-    from ..registry import config_dir
+def _params_args(localizer: str, scenario: Path) -> list[str]:
+    """``--params-file`` arguments: the packaged file, then the benchmark's file for this scenario's bag if the
+    plugin has one (as the replay reads it: ``bench_params``, e.g. the hybrid's camera_topomap)."""
+    from ..registry import config_dir, plugin
+    from .bench.specs import bench_params_file
 
-    return config_dir() / f"{localizer}.yaml"
+    files = [config_dir() / f"{localizer}.yaml"]
+    extra = bench_params_file(plugin(localizer), scenario.stem)
+    if extra is not None:
+        files.append(config_dir() / extra)
+    return [arg for path in files for arg in ("--params-file", str(path))]
 
 
 def live_runs(localizers: Sequence[str], scenario: Path, seconds: float, *, speed: float = 1.0,
@@ -221,7 +228,7 @@ def live_runs(localizers: Sequence[str], scenario: Path, seconds: float, *, spee
     sim = start_sim() if sim_first else None
     nodes: dict[str, NodeProcess] = {}
     for name in localizers:
-        args = ["--ros-args", "--params-file", str(_params_file(name))]
+        args = ["--ros-args", *_params_args(name, scenario)]
         if map_yaml and not sim_first:
             args += ["-p", f"map_yaml:={map_yaml}"]
         if name in tracking:
@@ -293,8 +300,8 @@ def startup_time(localizer: str, scenario: Path, *, env: dict[str, str] | None =
 
     sim = NodeProcess("robot_localization_suite.nodes.scan_sim", "--ros-args", "-p", f"scenario:={scenario}",
                       "-p", "exit_at_end:=false", env=env)
-    node = NodeProcess(f"robot_localization_suite.nodes.{localizer}", "--ros-args", "--params-file",
-                       str(_params_file(localizer)), env=env)
+    node = NodeProcess(f"robot_localization_suite.nodes.{localizer}", "--ros-args",
+                       *_params_args(localizer, scenario), env=env)
     probe = Probe([localizer])
     manager = LifecycleManager([localizer], log=lambda _line: None)
     try:
@@ -351,7 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     rows = []
     with tempfile.TemporaryDirectory(prefix="rls_live_") as folder:
-        bag = record_scenario(scenario, Path(folder) / "bag", options.seconds) if not (options.no_replay or options.sim_first) else None
+        bag = record_scenario(scenario, Path(folder) / scenario.stem, options.seconds) if not (options.no_replay or options.sim_first) else None
         def run(chosen: list[str]) -> list[LiveResult]:
             return live_runs(chosen, scenario, options.seconds, speed=options.speed, sim_first=options.sim_first,
                              tracking=options.tracking, env=env)

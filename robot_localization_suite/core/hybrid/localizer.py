@@ -94,6 +94,7 @@ class HybridLocalizer:
                                     heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
         self._images: deque[Future[SeenImage]] = deque()  # images being matched, oldest first
         self._image_errors = 0
+        self._images_used = 0  # images matched and used (for /diagnostics)
         self.grid_map: GridMap | None = None
         self._seed_pending = True
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
@@ -214,6 +215,8 @@ class HybridLocalizer:
             self.monitor.submit(scan)
         if estimate is None:
             return None
+        if self.camera is not None:
+            notes.update(camera_images=self._images_used, camera_image_errors=self._image_errors)
         estimate = replace(estimate, details={**estimate.details, **notes, **self.runner.details(),
                                               "better_updates": self._better_count})
         self.last_estimate = estimate
@@ -234,6 +237,7 @@ class HybridLocalizer:
                                  self._image_errors, type(exc).__name__, exc)
                 continue
             camera.add(seen)
+            self._images_used += 1
             if self.grid_map is not None:
                 # the particles (and the filter's rivals) are at the filter's last update
                 self.mcl.weigh(functools.partial(self._camera_evidence, odom=self.mcl.odometry.reference,

@@ -20,7 +20,7 @@ from ...core.errors import SettingsError
 from ...core.scan import LaserMount
 from ...core.settings import parameters, read_params_file, unknown_params
 
-__all__ = ["LocalizerSpec", "registry_spec"]
+__all__ = ["LocalizerSpec", "bench_params_file", "registry_spec"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,11 @@ class LocalizerSpec:
             if fnmatch.fnmatch(bag_name, pattern):
                 return spec
         return self
+
+
+def bench_params_file(plugin: registry.LocalizerPlugin, bag_name: str) -> str | None:
+    """The plugin's params file for ``bag_name`` (its first ``bench_params`` glob that matches), or None."""
+    return next((file for pattern, file in plugin.bench_params.items() if fnmatch.fnmatch(bag_name, pattern)), None)
 
 
 def _plugin_factory(name: str, settings: Any) -> Any:
