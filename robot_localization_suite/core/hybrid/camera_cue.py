@@ -74,11 +74,11 @@ class CameraCue:
         return SeenImage(float(stamp), np.log(np.maximum(found.match, _LEAST_MATCH)), found.heading)
 
     def add(self, seen: SeenImage) -> None:
-        """Keep a matched image; images older than ``window_s`` before it are dropped."""
+        """Keep a matched image; images older than ``window_s`` before it are dropped (taken or not)."""
         self.recent.append(seen)
         while self.recent and self.recent[0].stamp < seen.stamp - self.window_s:
             self.recent.popleft()
-        self._unused.append(seen)
+        self._unused = [old for old in self._unused if old.stamp >= seen.stamp - self.window_s] + [seen]
 
     def on_image(self, stamp: float, image: ArrayLike) -> SeenImage:
         """:meth:`match` then :meth:`add`."""
@@ -90,10 +90,10 @@ class CameraCue:
         """The images of the ``window_s`` before ``stamp`` (none after it)."""
         return [seen for seen in self.recent if stamp - self.window_s <= seen.stamp <= stamp]
 
-    def take_new(self) -> list[SeenImage]:
-        """The images not taken before (each counts once in a running sum)."""
+    def take_new(self, stamp: float) -> list[SeenImage]:
+        """The images of the ``window_s`` before ``stamp`` not taken before (each counts once in a running sum)."""
         new, self._unused = self._unused, []
-        return new
+        return [seen for seen in new if seen.stamp >= stamp - self.window_s]
 
     def log_likelihood(self, poses: ArrayLike, seen: SeenImage) -> NDArray[np.float64]:
         """``(N,)`` camera log-likelihood of each pose ``(N, 3)`` (the camera's, at the image's time) for ``seen``."""

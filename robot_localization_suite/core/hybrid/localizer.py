@@ -95,6 +95,7 @@ class HybridLocalizer:
         self._images: deque[Future[SeenImage]] = deque()  # images being matched, oldest first
         self._image_errors = 0
         self._images_used = 0  # images matched and used (for /diagnostics)
+        self._images_dropped = 0  # images that came while one was being matched
         self.grid_map: GridMap | None = None
         self._seed_pending = True
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
@@ -163,8 +164,9 @@ class HybridLocalizer:
 
     def on_image(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
         """A camera image, with a ``camera_topomap``: matched against its places in a worker thread (never in the
-        tracking update), then used at the next scan (:meth:`_take_images`). Never an estimate: the filter updates
-        on scans.
+        tracking update), then used at the next scan (:meth:`_take_images`). One match at a time: an image that
+        comes while one is being matched is dropped (all are kept with ``wait_for_workers``). Never an estimate:
+        the filter updates on scans.
 
         Raises:
             ImageError: the image cannot be read (the next one is tried).
@@ -177,6 +179,9 @@ class HybridLocalizer:
             grey = to_grey(image)
         except ValueError as exc:
             raise ImageError(str(exc)) from exc
+        if self._images and not self._images[-1].done() and not self.settings.wait_for_workers:
+            self._images_dropped += 1  # one match at a time: a camera faster than the matching is not queued
+            return None
         camera = self.camera
         self._images.append(in_thread("rls-hybrid-camera", lambda: camera.match(stamp, grey)))
         return None
@@ -216,7 +221,8 @@ class HybridLocalizer:
         if estimate is None:
             return None
         if self.camera is not None:
-            notes.update(camera_images=self._images_used, camera_image_errors=self._image_errors)
+            notes.update(camera_images=self._images_used, camera_image_errors=self._image_errors,
+                         camera_images_dropped=self._images_dropped)
         estimate = replace(estimate, details={**estimate.details, **notes, **self.runner.details(),
                                               "better_updates": self._better_count})
         self.last_estimate = estimate
@@ -309,8 +315,7 @@ class HybridLocalizer:
             self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)
         if self.camera is not None:  # each image once in the running sum
             camera = self._camera_evidence(np.vstack([predicted[None, :], pool]), odom,
-                                           [seen for seen in self.camera.take_new()
-                                            if seen.stamp >= scan.stamp - self.settings.camera_window])
+                                           self.camera.take_new(scan.stamp))
             advantage = advantage + (camera[1:] - camera[0])
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
