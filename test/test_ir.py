@@ -340,6 +340,33 @@ def test_noisy_scans_off_the_grid_are_found_within_the_papers_tolerance(world: G
     assert np.mean([r[10] for r in recalls]) >= 0.9
 
 
+def test_a_place_step_1_missed_is_found_by_the_wide_search(
+    world: GridMap, localizer: IRLocalizer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # On a partial map step 1 can miss the place (the scan's pattern ends are not the map's): here it is
+    # made to miss by dropping every position within 2 m of the truth from its answer.
+    from robot_localization_suite.core.ir import global_fix
+
+    pose = np.array([6.0, 5.0, 0.3])
+    scan = scan_at(world, pose)
+    found = localizer.global_fix(scan)
+    assert close(found.candidates[0], pose, 0.2) and "wide_search_positions" not in found.details  # explained: no search
+    step1 = global_fix.step1_positions
+
+    def missing_the_place(index: IRIndex, terms: list[np.ndarray], **kwargs: object) -> tuple[np.ndarray, np.ndarray]:
+        ids, scores = step1(index, terms, **kwargs)  # type: ignore[arg-type]
+        away = np.hypot(*(index.positions[ids] - pose[:2]).T) > 2.0
+        return ids[away], scores[away]
+
+    monkeypatch.setattr(global_fix, "step1_positions", missing_the_place)
+    narrow = IRLocalizer(settings(wide_search_below=0.0), None)
+    _share_index(narrow, localizer)
+    assert not close(narrow.global_fix(scan).candidates[0], pose)
+    wide = localizer.global_fix(scan)
+    assert wide.details["wide_search_positions"] > 0
+    assert close(wide.candidates[0], pose, 0.2, math.radians(5.0))
+
+
 def _hand_index(fans: np.ndarray) -> IRIndex:
     """An index over hand-made fans (no map): step 2 reads only positions and fans."""
     count = len(fans)

@@ -199,27 +199,16 @@ class IRGlobalFixer:
         timings["step1_ms"] = (time.perf_counter() - start) * 1e3
         details["positions"] = len(position_ids)
         details["step1_xy"] = index.positions[position_ids]
-        mid = time.perf_counter()
-        poses, scores = step2_poses(
-            index,
-            live,
-            position_ids,
-            heading_count=s.heading_count,
-            range_bin=s.step2_range_bin,
-            tolerance_bins=s.step2_tolerance_bins,
-            use_idf=s.use_idf,
-            no_return_terms=s.no_return_terms,
-            idf_log=s.idf_log,
-            evidence=self.evidence if s.neutral_unknown else None,
-            exact=s.refine_candidates + s.max_candidates,
-        )
-        timings["step2_ms"] = (time.perf_counter() - mid) * 1e3
+        poses, scores = self._ranked_poses(index, live, position_ids, timings)
+        if len(poses) and fallback is None and self._explains_too_little(live, poses[0]):
+            # Step 1 found no place that explains the scan: look over the coarse lattice too (docs/ir.md).
+            lattice = np.setdiff1d(self._coarse_positions(index), position_ids)
+            details["wide_search_positions"] = len(lattice)
+            wide_poses, wide_scores = self._ranked_poses(index, live, lattice, timings)
+            poses, scores = self._merge(np.vstack([poses, wide_poses]), np.concatenate([scores, wide_scores]))
         if len(poses) == 0:
             return self._no_candidates(scan.stamp, "step 2 found no pose sharing a hit with the scan", details)
-        mid = time.perf_counter()
-        poses, scores = self._rerank(live, poses, scores)
-        details["best_score"] = float(scores[0]) if len(scores) else 0.0
-        timings["refine_ms"] = (time.perf_counter() - mid) * 1e3
+        details["best_score"] = float(scores[0])
         timings["total_ms"] = (time.perf_counter() - start) * 1e3
         details.update(timings)
         weights = np.maximum(scores, 0.0)
@@ -233,6 +222,52 @@ class IRGlobalFixer:
             candidate_weights=weights,
             details=details,
         )
+
+    def _ranked_poses(
+        self, index: IRIndex, live: Any, position_ids: NDArray[np.int64], timings: dict[str, float]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Step 2 over ``position_ids``, then the refinement and duplicate suppression; adds to ``timings``."""
+        s = self.settings
+        start = time.perf_counter()
+        poses, scores = step2_poses(
+            index,
+            live,
+            position_ids,
+            heading_count=s.heading_count,
+            range_bin=s.step2_range_bin,
+            tolerance_bins=s.step2_tolerance_bins,
+            use_idf=s.use_idf,
+            no_return_terms=s.no_return_terms,
+            idf_log=s.idf_log,
+            evidence=self.evidence if s.neutral_unknown else None,
+            exact=s.refine_candidates + s.max_candidates,
+        )
+        mid = time.perf_counter()
+        timings["step2_ms"] = timings.get("step2_ms", 0.0) + (mid - start) * 1e3
+        if len(poses):
+            poses, scores = self._rerank(live, poses, scores)
+        timings["refine_ms"] = timings.get("refine_ms", 0.0) + (time.perf_counter() - mid) * 1e3
+        return poses, scores
+
+    def _explains_too_little(self, live: Any, pose: NDArray[np.float64]) -> bool:
+        """Whether fewer than ``wide_search_below`` of the scan's end points at ``pose`` lie near a mapped obstacle."""
+        s = self.settings
+        if s.wide_search_below <= 0.0 or s.fallback_positions <= 0 or self.evidence is None:
+            return False
+        hits = live.hit_mask
+        share = self.evidence.hit_fractions(pose[None, :], live.angles[hits], live.ranges[hits],
+                                            neutral_unknown=s.neutral_unknown)[0]
+        return bool(share < s.wide_search_below)
+
+    def _merge(
+        self, poses: NDArray[np.float64], scores: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Two ranked lists as one: best score first, duplicates of a better pose dropped, ``max_candidates`` kept."""
+        s = self.settings
+        order = np.argsort(-scores, kind="stable")
+        poses, scores = poses[order], scores[order]
+        keep = suppress_duplicates(poses, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
+        return poses[keep], scores[keep]
 
     def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
         """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
