@@ -365,6 +365,10 @@ def test_a_place_step_1_missed_is_found_by_the_wide_search(
     wide = localizer.global_fix(scan)
     assert wide.details["wide_search_positions"] > 0
     assert close(wide.candidates[0], pose, 0.2, math.radians(5.0))
+    # a lattice coarser than the refinement can close (here 0.2 m apart, 2 x 0.05 m reach) is not searched
+    short_reach = IRLocalizer(settings(refine_max_shift=0.05), None)
+    _share_index(short_reach, localizer)
+    assert "wide_search_positions" not in short_reach.global_fix(scan).details
 
 
 def _hand_index(fans: np.ndarray) -> IRIndex:

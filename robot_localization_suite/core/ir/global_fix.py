@@ -50,7 +50,7 @@ class IRGlobalFixer:
         self.index: IRIndex | None = None
         self._field: DistanceField | None = None
         self._evidence: MapEvidence | None = None
-        self._coarse: tuple[IRIndex, NDArray[np.int64]] | None = None
+        self._coarse: tuple[IRIndex, NDArray[np.int64], float] | None = None
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
@@ -250,10 +250,13 @@ class IRGlobalFixer:
         return poses, scores
 
     def _explains_too_little(self, live: Any, pose: NDArray[np.float64]) -> bool:
-        """Whether fewer than ``wide_search_below`` of the scan's end points at ``pose`` lie near a mapped obstacle."""
+        """Whether fewer than ``wide_search_below`` of the scan's end points at ``pose`` lie near a mapped obstacle
+        and the coarse lattice is fine enough for the refinement to reach any place from it (docs/ir.md)."""
         s = self.settings
         if s.wide_search_below <= 0.0 or s.fallback_positions <= 0 or self.evidence is None:
             return False
+        if self.index is None or self._coarse_lattice(self.index)[1] > 2.0 * s.refine_max_shift:
+            return False  # a lattice coarser than the refinement closes would cost without finding the place
         hits = live.hit_mask
         share = self.evidence.hit_fractions(pose[None, :], live.angles[hits], live.ranges[hits],
                                             neutral_unknown=s.neutral_unknown)[0]
@@ -271,12 +274,23 @@ class IRGlobalFixer:
 
     def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
         """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
+        return self._coarse_lattice(index)[0]
+
+    def _coarse_lattice(self, index: IRIndex) -> tuple[NDArray[np.int64], float]:
+        """The coarse lattice's positions and their spacing [m]."""
         if self._coarse is None or self._coarse[0] is not index:
             lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.grid_step).astype(np.int64)
             stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
             chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
-            self._coarse = (index, chosen)
-        return self._coarse[1]
+            self._coarse = (index, chosen, stride * index.grid_step)
+            spacing, reach = stride * index.grid_step, 2.0 * self.settings.refine_max_shift
+            if self.settings.wide_search_below > 0.0 and spacing > reach:
+                _LOG.info(
+                    "IR wide search off on this map: %d coarse positions lie %.2f m apart, farther than the "
+                    "refinement closes (2 x refine_max_shift = %.2f m); fallback_positions %d would allow it",
+                    len(chosen), spacing, reach, int(math.ceil(len(index.positions) * (index.grid_step / reach) ** 2)),
+                )
+        return self._coarse[1], self._coarse[2]
 
     def _build_index(self, fan: FanModel) -> None:
         assert self.grid_map is not None

@@ -103,8 +103,9 @@ class IRSettings(Settings):
                                       low=0, high=10_000_000)
     wide_search_below: float = setting(0.9, "when the best candidate has fewer than this share of its end points "
                                        "near a mapped obstacle, step 2 also runs over the coarse lattice of "
-                                       "fallback_positions (step 1 may have missed the place on a partial map); "
-                                       "0: never (paper)", low=0.0, high=1.0)
+                                       "fallback_positions (step 1 may have missed the place on a partial map), "
+                                       "if that lattice is at most 2 x refine_max_shift apart; 0: never (paper)",
+                                       low=0.0, high=1.0)
     # tracking (IV-C, IV-D)
     particle_count: int = setting(100, "particles tracked after an initialisation (paper 100)", low=1, high=10_000_000)
     initial_particles: str = setting("rank", "particles of an initialisation: drawn from the candidates with "
