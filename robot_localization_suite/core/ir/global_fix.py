@@ -195,14 +195,14 @@ class IRGlobalFixer:
                 return self._no_candidates(scan.stamp, fallback, details)
             # Step 1 cannot place the scan: step 2 over a coarse lattice of all positions instead.
             details["fallback"] = fallback
-            position_ids = self._coarse_positions(index)
+            position_ids = self._coarse_lattice(index)[0]
         timings["step1_ms"] = (time.perf_counter() - start) * 1e3
         details["positions"] = len(position_ids)
         details["step1_xy"] = index.positions[position_ids]
         poses, scores = self._ranked_poses(index, live, position_ids, timings)
-        if len(poses) and fallback is None and self._explains_too_little(live, poses[0]):
+        if len(poses) and fallback is None and self._explains_too_little(index, live, poses[0]):
             # Step 1 found no place that explains the scan: look over the coarse lattice too (docs/ir.md).
-            lattice = np.setdiff1d(self._coarse_positions(index), position_ids)
+            lattice = np.setdiff1d(self._coarse_lattice(index)[0], position_ids)
             details["wide_search_positions"] = len(lattice)
             wide_poses, wide_scores = self._ranked_poses(index, live, lattice, timings)
             poses, scores = self._merge(np.vstack([poses, wide_poses]), np.concatenate([scores, wide_scores]))
@@ -249,13 +249,13 @@ class IRGlobalFixer:
         timings["refine_ms"] = timings.get("refine_ms", 0.0) + (time.perf_counter() - mid) * 1e3
         return poses, scores
 
-    def _explains_too_little(self, live: Any, pose: NDArray[np.float64]) -> bool:
+    def _explains_too_little(self, index: IRIndex, live: Any, pose: NDArray[np.float64]) -> bool:
         """Whether fewer than ``wide_search_below`` of the scan's end points at ``pose`` lie near a mapped obstacle
         and the coarse lattice is fine enough for the refinement to reach any place from it (docs/ir.md)."""
         s = self.settings
         if s.wide_search_below <= 0.0 or s.fallback_positions <= 0 or self.evidence is None:
             return False
-        if self.index is None or self._coarse_lattice(self.index)[1] > 2.0 * s.refine_max_shift:
+        if self._coarse_lattice(index)[1] > 2.0 * s.refine_max_shift:
             return False  # a lattice coarser than the refinement closes would cost without finding the place
         hits = live.hit_mask
         share = self.evidence.hit_fractions(pose[None, :], live.angles[hits], live.ranges[hits],
@@ -272,18 +272,15 @@ class IRGlobalFixer:
         keep = suppress_duplicates(poses, distance=s.nms_distance, angle=s.nms_angle, limit=s.max_candidates)
         return poses[keep], scores[keep]
 
-    def _coarse_positions(self, index: IRIndex) -> NDArray[np.int64]:
-        """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column)."""
-        return self._coarse_lattice(index)[0]
-
     def _coarse_lattice(self, index: IRIndex) -> tuple[NDArray[np.int64], float]:
-        """The coarse lattice's positions and their spacing [m]."""
+        """About ``fallback_positions`` positions evenly spread over the map (every n-th lattice row and column),
+        and their spacing [m]."""
         if self._coarse is None or self._coarse[0] is not index:
             lattice = np.rint((index.positions - index.positions.min(axis=0)) / index.grid_step).astype(np.int64)
             stride = max(1, int(math.ceil(math.sqrt(len(index.positions) / self.settings.fallback_positions))))
             chosen = np.flatnonzero((lattice[:, 0] % stride == 0) & (lattice[:, 1] % stride == 0))
-            self._coarse = (index, chosen, stride * index.grid_step)
             spacing, reach = stride * index.grid_step, 2.0 * self.settings.refine_max_shift
+            self._coarse = (index, chosen, spacing)
             if self.settings.wide_search_below > 0.0 and spacing > reach:
                 _LOG.info(
                     "IR wide search off on this map: %d coarse positions lie %.2f m apart, farther than the "
