@@ -121,6 +121,37 @@ def test_reinitialize_spreads_particles_over_free_space(office: GridMap, run: Dr
     assert np.allclose(localizer.weights, 1.0 / 8000)
 
 
+def test_the_odometrys_own_noise_moves_the_cloud_once_localized_the_wide_noise_before(
+        office: GridMap, run: Drive) -> None:
+    settings = MclSettings(max_particles=3000, alpha1=0.3, alpha2=0.3, alpha3=0.3, alpha4=0.3,
+                           tracking_alpha1=0.001, tracking_alpha2=0.0, tracking_alpha3=0.002, tracking_alpha4=0.0)
+    assert settings.tracking_motion_model().alpha3 == 0.002 and settings.motion_model().alpha3 == 0.3
+    assert MclSettings(alpha1=0.3).tracking_motion_model().alpha1 == 0.3  # unset: nav2's one set
+    localizer = MonteCarloLocalizer(settings, office)
+    used: list[str] = []
+
+    class Recorded:
+        def __init__(self, name: str, model: object) -> None:
+            self.name, self.model = name, model
+
+        def sample(self, *args: object) -> np.ndarray:
+            used.append(self.name)
+            return self.model.sample(*args)  # type: ignore[attr-defined]
+
+    localizer.motion_model = Recorded("wide", localizer.motion_model)  # type: ignore[assignment]
+    localizer.tracking_motion_model = Recorded("odometry", localizer.tracking_motion_model)  # type: ignore[assignment]
+    localizer.set_initial_pose(run.truth[0], np.diag([0.5**2, 0.5**2, math.radians(20.0) ** 2]))
+    outputs = _replay(localizer, run, stop=200)
+    first = next(i for i, (_, estimate) in enumerate(outputs) if estimate.status is LocalizerStatus.LOCALIZED)
+    # the first scan only sets the odometry reference: used[i] moved the cloud for outputs[i + 1]
+    assert first >= 1 and used[:first] == ["wide"] * first and set(used[first:]) == {"odometry"}
+    assert _errors(outputs, run)[:, 0].max() < 0.25
+    localizer.reinitialize()  # a global search: the wide noise again, until LOCALIZED
+    used.clear()
+    _replay(localizer, run, start=200, stop=215)
+    assert used and used[0] == "wide"
+
+
 def test_set_initial_pose_resets_the_cloud_around_the_pose(office: GridMap, run: Drive) -> None:
     localizer = MonteCarloLocalizer(MclSettings(max_particles=5000), office)
     _replay(localizer, run, stop=50)

@@ -124,6 +124,7 @@ class MonteCarloLocalizer:
         seed = None if self.settings.random_seed < 0 else int(self.settings.random_seed)
         self.rng = np.random.default_rng(seed)
         self.motion_model = self.settings.motion_model()
+        self.tracking_motion_model = self.settings.tracking_motion_model()
         self.counters = MclCounters()
         self.grid_map: GridMap | None = None
         self._map_fingerprint: str | None = None
@@ -224,8 +225,10 @@ class MonteCarloLocalizer:
         if not (moved or gate.forced):
             return None
         if moved and gate.reference is not None and odom is not None:
-            self.particles = self.motion_model.sample(self.particles, gate.reference, odom, self.rng)
-            self.rivals.predict(self.motion_model, gate.reference, odom, self.rng)
+            # the odometry's own noise once LOCALIZED; the wider noise keeps a searching cloud diverse (docs/mcl.md)
+            motion = self.tracking_motion_model if self._ever_localized else self.motion_model
+            self.particles = motion.sample(self.particles, gate.reference, odom, self.rng)
+            self.rivals.predict(motion, gate.reference, odom, self.rng)
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 

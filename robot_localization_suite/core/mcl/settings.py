@@ -45,6 +45,16 @@ class MclSettings(Settings):
     alpha5: float = setting(
         0.02, "strafe noise from translation, omnidirectional model only (nav2 0.2)", low=0.0, high=100.0
     )
+    tracking_alpha1: float = setting(
+        -1.0, "alpha1 once the filter has been LOCALIZED since its last start: the odometry's own noise; negative: "
+        "alpha1 (nav2: one set). Until then the wider alpha1..alpha4 keep a searching cloud diverse (docs/mcl.md)",
+        low=-1.0, high=100.0)
+    tracking_alpha2: float = setting(-1.0, "alpha2 once LOCALIZED since the last start; negative: alpha2", low=-1.0,
+                                     high=100.0)
+    tracking_alpha3: float = setting(-1.0, "alpha3 once LOCALIZED since the last start; negative: alpha3", low=-1.0,
+                                     high=100.0)
+    tracking_alpha4: float = setting(-1.0, "alpha4 once LOCALIZED since the last start; negative: alpha4", low=-1.0,
+                                     high=100.0)
     robot_model_type: str = setting(
         "differential", "odometry motion model (nav2 plugin names accepted)", choices=tuple(ROBOT_MODEL_TYPES)
     )
@@ -184,4 +194,16 @@ class MclSettings(Settings):
     def motion_model(self) -> OdometryMotionModel:
         return OdometryMotionModel(
             self.alpha1, self.alpha2, self.alpha3, self.alpha4, self.alpha5, omnidirectional=self.omnidirectional
+        )
+
+    def tracking_motion_model(self) -> OdometryMotionModel:
+        """The motion model once the filter has been LOCALIZED since its last start: ``tracking_alpha*`` where set,
+        else ``alpha*``."""
+        def own(tracking: float, wide: float) -> float:
+            return tracking if tracking >= 0.0 else wide
+
+        return OdometryMotionModel(
+            own(self.tracking_alpha1, self.alpha1), own(self.tracking_alpha2, self.alpha2),
+            own(self.tracking_alpha3, self.alpha3), own(self.tracking_alpha4, self.alpha4), self.alpha5,
+            omnidirectional=self.omnidirectional,
         )
