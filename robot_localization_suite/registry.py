@@ -125,6 +125,8 @@ class LocalizerPlugin:
             ``config/<name>.yaml``, as a second ``--params-file`` (the first matching glob wins).
         outputs: extra output topics, for ``--help`` (``"~/boxes (visualization_msgs/MarkerArray)"``).
         camera_cue: a laser method that also reads camera images when its settings name a ``camera_topomap``.
+        odometry_noise_params: declared name (``alpha1``..``alpha4`` of the odometry motion model) -> the
+            parameter that takes it, where the benchmark gives the noise a bag declares for its odometry.
     """
 
     name: str
@@ -137,6 +139,7 @@ class LocalizerPlugin:
     bench_params: Mapping[str, str] = field(default_factory=dict)
     outputs: tuple[str, ...] = ()
     camera_cue: bool = False
+    odometry_noise_params: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def uses_camera(self) -> bool:
@@ -213,6 +216,8 @@ def _create_ima(settings: ImaTrackerSettings) -> Any:
 # saturates and never fixes. Tracking works there with the SLAM parameters (docs/ial.md).
 _IAL_REAL_LOG = "real 180-degree log with a mostly unknown SLAM map: global boxes saturate, no fix (docs/ial.md)"
 _IAL_SLAM_PARAMS = "ial_localizer_slam.yaml"
+# The MCL filter's motion noise, which the benchmark sets to the noise a bag declares for its odometry.
+_ALPHAS = {f"alpha{i}": f"tracking_alpha{i}" for i in range(1, 5)}
 
 PLUGINS: dict[str, LocalizerPlugin] = {
     p.name: p
@@ -224,6 +229,7 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             "with nav2_amcl's parameter names.",
             MclSettings,
             _create_mcl,
+            odometry_noise_params=_ALPHAS,
         ),
         LocalizerPlugin(
             "pil_localizer",
@@ -266,6 +272,7 @@ PLUGINS: dict[str, LocalizerPlugin] = {
             _create_hybrid,
             bench_params={"office_twins_camera*": "hybrid_localizer_office_twins.yaml"},
             camera_cue=True,
+            odometry_noise_params={name: f"mcl.{param}" for name, param in _ALPHAS.items()},
         ),
         LocalizerPlugin(
             "ima_topo_localizer",

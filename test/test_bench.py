@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -21,6 +22,7 @@ from robot_localization_suite.core import metrics
 from robot_localization_suite.core.errors import SettingsError
 from robot_localization_suite.core.grid_map import GridMap, load_map_yaml
 from robot_localization_suite.core.localizer import Place
+from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, OdometryMotionModel, declare_odometry_noise
 from robot_localization_suite.core.progress import progress_disabled
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
@@ -55,9 +57,11 @@ def true_trajectory(stamps: np.ndarray, kidnap: bool) -> tuple[np.ndarray, np.nd
 
 
 def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap: bool = True, duration: float = 20.0,
-              map_change_at: float | None = None, reinitialize_at: float | None = None):
+              map_change_at: float | None = None, reinitialize_at: float | None = None,
+              custom_data: dict[str, str] | None = None):
     """``map_change_at`` / ``reinitialize_at`` [s after the first scan]: a second /map (the pillar moved) and a
-    reinitialization request there, as ``scan_sim --record`` writes them (before that step's messages)."""
+    reinitialization request there, as ``scan_sim --record`` writes them (before that step's messages).
+    ``custom_data``: the metadata's (``carmen_to_bag`` declares its odometry noise there)."""
     from std_msgs.msg import Header
 
     grid_map = room_map()
@@ -67,7 +71,7 @@ def write_bag(path, *, truth_topic: bool = True, map_topic: bool = True, kidnap:
     truth, odom = true_trajectory(stamps, kidnap)
     angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
     ranges = RayCaster(grid_map, max_range=10.0).cast(truth, angles)
-    with BagWriter(path) as writer:
+    with BagWriter(path, custom_data=custom_data) as writer:
         if map_topic:
             writer.write("/map", conversions.grid_map_to_msg(grid_map, stamps[0]), int(stamps[0] * 1e9) - 3000)
         for stamp, true_pose, odom_pose, scan in zip(stamps, truth, odom, ranges, strict=True):
@@ -536,6 +540,47 @@ def test_ial_runs_the_real_logs_in_tracking_mode_only_with_the_slam_params():
         assert spec.for_bag(bag).params == "ial_localizer_slam.yaml" and not settings.unknown_is_obstacle
     assert spec.for_bag("office_kidnap") is spec and spec.skip_reason("office_kidnap") is None
     assert spec.factory.args[1].unknown_is_obstacle and spec.params is None
+
+
+DECLARED = {"alpha1": 0.0012, "alpha2": 0.0001, "alpha3": 0.0004, "alpha4": 0.0001}
+
+
+def test_a_bags_declared_odometry_noise_becomes_the_motion_noise_unless_set_otherwise():
+    mcl = bench.registry_spec("mcl_baseline")
+    assert mcl.factory.args[1].alpha1 == 0.02  # the packaged value
+    declared = mcl.for_bag("orebro", DECLARED)
+    settings = declared.factory.args[1]
+    tracking = (settings.tracking_alpha1, settings.tracking_alpha2, settings.tracking_alpha3, settings.tracking_alpha4)
+    assert tracking == (0.0012, 0.0001, 0.0004, 0.0001) and settings.alpha1 == 0.02  # the search noise stays
+    assert declared.odometry_noise == {f"tracking_{k}": v for k, v in DECLARED.items()}
+    assert declared.name == "mcl_baseline"
+    assert settings.max_particles == mcl.factory.args[1].max_particles  # nothing else changes
+    assert mcl.for_bag("orebro") is mcl  # a bag that declares nothing
+    own = bench.registry_spec("mcl_baseline", {"tracking_alpha1": 0.5}).for_bag("orebro", DECLARED)
+    assert own.factory.args[1].tracking_alpha1 == 0.5 and own.factory.args[1].tracking_alpha3 == 0.0004  # --set wins
+    assert "tracking_alpha1" not in own.odometry_noise
+    kept = bench.registry_spec("mcl_baseline", declared_noise=False)  # --odometry-noise params
+    assert kept.for_bag("orebro", DECLARED) is kept
+    hybrid = bench.registry_spec("hybrid_localizer").for_bag("intel", DECLARED).factory.args[1]
+    assert hybrid.mcl.tracking_alpha3 == 0.0004 and hybrid.mcl.alpha3 == 0.02
+    ial = bench.registry_spec("ial_localizer")
+    assert ial.for_bag("orebro", DECLARED) is ial.for_bag("orebro")  # IAL's bounds come from its slam file
+    assert ial.for_bag("orebro", DECLARED).params == "ial_localizer_slam.yaml"
+
+
+def test_the_declared_noise_is_read_from_the_bag_and_reported(tmp_path, caplog):
+    good, bad = tmp_path / "declares", tmp_path / "garbled"
+    write_bag(good, kidnap=False, duration=2.0,
+              custom_data={ODOMETRY_NOISE_KEY: declare_odometry_noise(OdometryMotionModel(**DECLARED))})
+    write_bag(bad, kidnap=False, duration=2.0, custom_data={ODOMETRY_NOISE_KEY: '{"model": "odometry", "alpha1": -1}'})
+    assert bench.load_reference(good).odometry_noise == DECLARED
+    with caplog.at_level(logging.WARNING, logger="rls_bench"):
+        assert bench.load_reference(bad).odometry_noise is None
+    assert "ignoring its declared odometry noise" in caplog.text and "alpha" in caplog.text
+    summary = bench.run_benchmark([good], [bench.registry_spec("mcl_baseline")], tmp_path / "out", isolate=False,
+                                  mode="tracking")
+    assert summary["declares"]["mcl_baseline"]["odometry_noise"].startswith("declared by the bag: tracking_alpha1=0.0012")
+    assert "odometry noise declared by the bag" in (tmp_path / "out" / "summary.md").read_text()
 
 
 def exit_at_once():

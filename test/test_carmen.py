@@ -11,9 +11,9 @@ import pytest
 from carmen_world import corridor_poses, write_log
 
 from robot_localization_suite.core.grid_map import load_map_yaml
-from robot_localization_suite.core.motion import odometry_delta
+from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, odometry_delta, read_odometry_noise
 from robot_localization_suite.ros import conversions
-from robot_localization_suite.ros.bag import bag_topics, read_bag
+from robot_localization_suite.ros.bag import bag_custom_data, bag_topics, read_bag
 from robot_localization_suite.tools import carmen_log, carmen_to_bag
 from robot_localization_suite.tools.carmen_to_bag import CarmenLogError, ConversionSettings, convert_log
 
@@ -120,6 +120,16 @@ def test_odometry_is_noisy_but_follows_the_corrected_steps(converted):
     odom_steps = np.array([odometry_delta(a, b).trans for a, b in itertools.pairwise(odom)])
     assert np.abs(odom_steps - true_steps).max() < 0.1 * true_steps.max() + 0.02
     assert not np.allclose(odom_steps, true_steps, atol=1e-9)  # noise was added
+
+
+def test_the_bag_declares_the_odometry_noise_it_was_made_with(converted, tmp_path):
+    declared = bag_custom_data(converted["bag"])[ODOMETRY_NOISE_KEY]
+    assert read_odometry_noise(declared) == dict(zip(("alpha1", "alpha2", "alpha3", "alpha4"),
+                                                     ConversionSettings().alphas, strict=True))
+    noisier = ConversionSettings(seed=3, alphas=(0.01, 0.002, 0.03, 0.004))
+    convert_log(converted["log"], tmp_path / "noisier", settings=noisier)
+    assert read_odometry_noise(bag_custom_data(tmp_path / "noisier")[ODOMETRY_NOISE_KEY]) == {
+        "alpha1": 0.01, "alpha2": 0.002, "alpha3": 0.03, "alpha4": 0.004}
 
 
 def test_same_seed_same_bag(converted, tmp_path):

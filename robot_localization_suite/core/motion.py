@@ -21,7 +21,9 @@ read as one arc at constant (v, w), its length and turn perturbed.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,7 +31,11 @@ from numpy.typing import ArrayLike, NDArray
 from .se2 import angle_difference, wrap_angle
 
 __all__ = ["OdometryDelta", "OdometryMotionModel", "VelocityMotionModel", "MotionBounds", "odometry_delta",
-           "apply_delta", "arc_of_step"]
+           "apply_delta", "arc_of_step", "ODOMETRY_NOISE_KEY", "declare_odometry_noise", "read_odometry_noise"]
+
+# Key of a bag's metadata ``custom_data`` that declares the noise of its /odom (docs/benchmark.md).
+ODOMETRY_NOISE_KEY = "robot_localization_suite.odometry_noise"
+_ALPHA_NAMES = ("alpha1", "alpha2", "alpha3", "alpha4")
 
 # Below this translation [m] the heading of travel is meaningless (nav2 uses 0.01 m).
 _MIN_TRANSLATION_FOR_HEADING = 0.01
@@ -237,3 +243,32 @@ class VelocityMotionModel:
         # an arc is its chord, travelled at half the turn
         chord = length_hat * np.sinc(turn_hat / (2.0 * np.pi))
         return apply_delta(poses, 0.5 * turn_hat, chord, 0.5 * turn_hat)
+
+
+def declare_odometry_noise(model: OdometryMotionModel) -> str:
+    """The declaration a bag carries of the noise its odometry was made with: the differential model's
+    ``alpha1..alpha4`` (variance scales, nav2's meaning), as JSON."""
+    return json.dumps({"model": "odometry", **{name: float(getattr(model, name)) for name in _ALPHA_NAMES}})
+
+
+def read_odometry_noise(text: str) -> dict[str, float]:
+    """``alpha1..alpha4`` of a declaration made by :func:`declare_odometry_noise`.
+
+    Raises:
+        ValueError: not such a declaration, naming what is wrong with it.
+    """
+    try:
+        declared = json.loads(text)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"odometry noise declaration is not JSON: {text!r}") from exc
+    if not isinstance(declared, dict) or declared.get("model") != "odometry":
+        raise ValueError(f"odometry noise declaration must be of model 'odometry', got {text!r}")
+    alphas = {name: _number(name, declared.get(name)) for name in _ALPHA_NAMES}
+    _check_alphas(SimpleNamespace(**alphas), _ALPHA_NAMES)  # finite and >= 0, or a ValueError naming the one that is not
+    return alphas
+
+
+def _number(name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"odometry noise declaration: {name} must be a number, got {value!r}")
+    return float(value)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 import logging
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,7 +28,7 @@ from ..core.errors import BagError
 if TYPE_CHECKING:
     from .bag_recovery import RecoveredBag, Recovery
 
-__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_topics", "replay", "message_type_name",
+__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_custom_data", "bag_topics", "replay", "message_type_name",
            "message_class", "message_definition", "bag_bytes"]
 
 LOG = logging.getLogger(__name__)
@@ -81,7 +81,8 @@ class BagWriter:
     simulated bags shrink to less than half.
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, compress: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, compress: bool = False,
+                 custom_data: Mapping[str, str] | None = None) -> None:
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f"bag directory {str(self.path)!r} already exists")
@@ -89,6 +90,8 @@ class BagWriter:
         self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in (custom_data or {}).items():  # the metadata's custom_data, as rosbag2 keeps it
+            self._writer.set_custom_data(key, value)
         self._connections: dict[str, Any] = {}
         self.count = 0
 
@@ -184,6 +187,20 @@ class BagMessages(Iterator[BagMessage]):
             self.close()
         except Exception:  # noqa: BLE001 - never raise from a finalizer
             pass
+
+
+def bag_custom_data(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The ``custom_data`` of a bag's ``metadata.yaml`` (rosbag2 metadata version 6 on); empty when it has
+    none or no readable metadata (a damaged bag's is read as it is)."""
+    import yaml
+
+    try:
+        with open(Path(path) / "metadata.yaml", encoding="utf-8") as stream:
+            info = (yaml.safe_load(stream) or {}).get("rosbag2_bagfile_information") or {}
+    except (OSError, yaml.YAMLError, AttributeError):
+        return {}
+    custom = info.get("custom_data") if isinstance(info, dict) else None
+    return {str(key): str(value) for key, value in custom.items()} if isinstance(custom, dict) else {}
 
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:

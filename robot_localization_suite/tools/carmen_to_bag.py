@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError
 from ..core.grid_map import GridMap
-from ..core.motion import OdometryMotionModel, odometry_delta
+from ..core.motion import ODOMETRY_NOISE_KEY, OdometryMotionModel, declare_odometry_noise, odometry_delta
 from .carmen_log import (
     CarmenLog,
     CarmenLogError,
@@ -222,6 +222,7 @@ class PreparedLog:
         odom: ``(S, 3)`` simulated odometry, one seeded stream over the whole log.
         max_range: no-return threshold [m].
         scan_time: median time between scans [s] (``LaserScan.scan_time``).
+        odometry_model: the noise model ``odom`` was drawn from (declared in every bag cut from the log).
     """
 
     log: CarmenLog
@@ -232,6 +233,7 @@ class PreparedLog:
     odom: NDArray[np.float64]
     max_range: float
     scan_time: float
+    odometry_model: OdometryMotionModel
 
     @property
     def scans(self) -> list[CarmenScan]:
@@ -265,11 +267,11 @@ def prepare_log(
         for message in choice.warnings:
             on_warning(message)
     rng = np.random.default_rng(settings.seed)
-    alpha1, alpha2, alpha3, alpha4 = settings.alphas
-    odom = simulate_odometry(poses, OdometryMotionModel(alpha1, alpha2, alpha3, alpha4), rng)
+    model = OdometryMotionModel(*settings.alphas)
+    odom = simulate_odometry(poses, model, rng)
     stamps = choice.stamps
     scan_time = float(np.median(np.diff(stamps))) if len(stamps) > 1 else settings.period
-    return PreparedLog(log, stamps, choice.source, choice.warnings, poses, odom, float(max_range), scan_time)
+    return PreparedLog(log, stamps, choice.source, choice.warnings, poses, odom, float(max_range), scan_time, model)
 
 
 def build_log_map(prepared: PreparedLog, settings: ConversionSettings, indices: Sequence[int] | None = None) -> GridMap:
@@ -296,7 +298,8 @@ def write_bag(
     """Write the scans ``scans`` (default: all) of a prepared log as a bag, ``/map`` first if given.
 
     Every message depends only on its scan's index in the whole log, so the bags of a
-    partition of the scans hold exactly the whole log's messages.
+    partition of the scans hold exactly the whole log's messages. The bag's metadata declares the
+    odometry's noise model (``custom_data``, :data:`~..core.motion.ODOMETRY_NOISE_KEY`).
     """
     # Imported here so that parsing and map building stay usable without ROS.
     from ..ros import conversions
@@ -306,7 +309,8 @@ def write_bag(
     stamps, odom, poses, max_range = prepared.stamps, prepared.odom, prepared.poses, prepared.max_range
     microsecond = 1000
     out_dir = Path(out_dir)
-    with BagWriter(out_dir, compress=compress) as writer:
+    declared = {ODOMETRY_NOISE_KEY: declare_odometry_noise(prepared.odometry_model)}
+    with BagWriter(out_dir, compress=compress, custom_data=declared) as writer:
         if grid_map is not None:
             first = float(stamps[chosen[0]])
             writer.write("/map", conversions.grid_map_to_msg(grid_map, first),

@@ -140,6 +140,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="global (default): no prior; tracking: the first ground-truth pose on initialpose")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME.PARAM=VALUE",
                         help="override a localizer parameter (YAML value)")
+    parser.add_argument("--odometry-noise", choices=("declared", "params"), default="declared",
+                        help="declared (default): a bag that declares the noise of its /odom (carmen_to_bag writes it "
+                        "into the metadata) gives it to every localizer with an odometry motion model (mcl_baseline's "
+                        "and the hybrid's alpha1..alpha4) unless --set names them; params: the params files' values")
     parser.add_argument("--params-file", dest="params_files", action="append", default=[], metavar="NAME=PATH",
                         help="read NAME's parameters from PATH for every bag instead of config/NAME.yaml (and of its "
                         "per-bag files); --set still applies on top")
@@ -239,8 +243,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if params_file is None and args.profile:
                 params_file = _profile_file(name, args.profile)
             # Every grid point's settings are built (and checked) here, before anything is submitted.
-            own = (sweep_specs(name, sweeps[name], overrides.get(name), params_file) if name in sweeps
-                   else [registry_spec(name, overrides.get(name), params_file)])
+            declared = args.odometry_noise == "declared"
+            own = (sweep_specs(name, sweeps[name], overrides.get(name), params_file, declared_noise=declared)
+                   if name in sweeps else [registry_spec(name, overrides.get(name), params_file, declared_noise=declared)])
             specs += [dataclasses.replace(spec, skip={**spec.skip, **skips[name]}) if name in skips else spec
                       for spec in own]
         executor = _executor(args)

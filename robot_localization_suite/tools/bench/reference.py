@@ -21,6 +21,7 @@ from ... import registry
 from ...core import metrics
 from ...core.errors import MapError
 from ...core.grid_map import GridMap, load_map_yaml
+from ...core.motion import ODOMETRY_NOISE_KEY, read_odometry_noise
 from ...core.sim.config import REINITIALIZE_TOPIC as _REINITIALIZE
 
 if TYPE_CHECKING:
@@ -66,6 +67,7 @@ class BagReference:
     recovery: Recovery | None = None  # what was read back from a damaged bag; None: the bag is sound
     map_change_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s] of later /map
     reinitialize_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s]
+    odometry_noise: dict[str, float] | None = None  # alpha1..alpha4 the bag declares for its /odom, if it does
 
     @property
     def has_scan(self) -> bool:
@@ -108,10 +110,11 @@ def _trajectory(messages: list[BagMessage]) -> metrics.Trajectory | None:
 def load_reference(path: str | os.PathLike[str]) -> BagReference:
     """Read a bag's ground truth, odometry and map, and find its kidnappings (of what is left of a damaged bag)."""
     from ...ros import conversions
-    from ...ros.bag import bag_topics, read_bag
+    from ...ros.bag import bag_custom_data, bag_topics, read_bag
 
     path = Path(path)
     topics = bag_topics(path)
+    odometry_noise = _declared_odometry_noise(path, bag_custom_data(path))
     truth_msgs, odom_msgs = [], []
     map_grid = None
     maps_seen = 0
@@ -151,7 +154,21 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         recovery=recovery,
         map_change_stamps=np.array(map_changes, dtype=np.float64),
         reinitialize_stamps=np.array(requests, dtype=np.float64),
+        odometry_noise=odometry_noise,
     )
+
+
+def _declared_odometry_noise(path: Path, custom_data: dict[str, str]) -> dict[str, float] | None:
+    """The odometry noise a bag's metadata declares (``carmen_to_bag`` writes it); None, with a warning for a
+    declaration that cannot be read, when it declares none."""
+    text = custom_data.get(ODOMETRY_NOISE_KEY)
+    if text is None:
+        return None
+    try:
+        return read_odometry_noise(text)
+    except ValueError as exc:
+        LOG.warning("bag %s: ignoring its declared odometry noise: %s", path.name, exc)
+        return None
 
 
 def map_candidates(bag_name: str) -> list[Path]:

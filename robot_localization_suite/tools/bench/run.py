@@ -47,7 +47,7 @@ def _plan(
             elif reason:
                 yield reference, spec, reason
             else:
-                yield reference, spec.for_bag(reference.name), None
+                yield reference, spec.for_bag(reference.name, reference.odometry_noise), None
 
 
 def replay_task(
@@ -102,6 +102,8 @@ def finish_replay(
     fields["map"] = map_source
     if spec.params is not None:
         fields["params"] = spec.params
+    if spec.odometry_noise:
+        fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
     fields.update(_sweep_fields(spec))
     fields["wall_s"] = round(seconds, 1)
     line = f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}"
@@ -154,6 +156,8 @@ def finish_global_fixes(
     fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
     if spec.params is not None:
         fields["params"] = spec.params
+    if spec.odometry_noise:
+        fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
     fields.update(_sweep_fields(spec))
     scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
     scores = global_fix_scores(result, scan_coverage)

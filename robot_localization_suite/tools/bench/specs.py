@@ -39,6 +39,9 @@ class LocalizerSpec:
         params: the params file the settings were read from, if not the packaged one (reported).
         per_bag: bag-name glob -> the spec to use for those bags instead (other params).
         sweep: ``name.param`` -> value of a ``--sweep`` point this spec runs (reported as columns).
+        source: how a packaged localizer's settings were read (None for others): lets :meth:`for_bag` read them
+            again with the odometry noise a bag declares.
+        odometry_noise: parameter -> value this spec took from the bag's declared odometry noise (reported).
     """
 
     name: str
@@ -51,6 +54,8 @@ class LocalizerSpec:
     params: str | None = None
     per_bag: Mapping[str, LocalizerSpec] = field(default_factory=dict)
     sweep: Mapping[str, Any] = field(default_factory=dict)
+    source: SettingsSource | None = None
+    odometry_noise: Mapping[str, float] = field(default_factory=dict)
 
     def skip_reason(self, bag_name: str, mode: str = "global") -> str | None:
         """Why ``--all`` leaves this bag out in ``mode`` (global, tracking, global_fixes), or None."""
@@ -61,12 +66,53 @@ class LocalizerSpec:
                     return str(reason) + (f" ({mode} mode)" if table is self.skip_global else "")
         return None
 
-    def for_bag(self, bag_name: str) -> LocalizerSpec:
-        """The spec to run on ``bag_name``: the first ``per_bag`` glob that matches, else this one."""
-        for pattern, spec in self.per_bag.items():
-            if fnmatch.fnmatch(bag_name, pattern):
-                return spec
-        return self
+    def for_bag(self, bag_name: str, odometry_noise: Mapping[str, float] | None = None) -> LocalizerSpec:
+        """The spec to run on ``bag_name``: the first ``per_bag`` glob that matches, else this one; with the
+        bag's declared ``odometry_noise`` (``alpha1``..``alpha4``) as the motion noise of a localizer that has
+        one, unless ``--set`` or ``--odometry-noise params`` said otherwise (docs/benchmark.md)."""
+        chosen = next((spec for pattern, spec in self.per_bag.items() if fnmatch.fnmatch(bag_name, pattern)), self)
+        source = chosen.source
+        if not odometry_noise or source is None or not source.declared_noise:
+            return chosen
+        taken = {param: float(odometry_noise[name])
+                 for name, param in registry.plugin(source.name).odometry_noise_params.items()
+                 if name in odometry_noise and param not in source.overrides}
+        if not taken:
+            return chosen
+        rebuilt = _spec(dataclasses.replace(source, overrides={**taken, **source.overrides}))
+        return dataclasses.replace(rebuilt, name=chosen.name, skip=chosen.skip, skip_global=chosen.skip_global,
+                                   params=chosen.params, sweep=chosen.sweep, odometry_noise=taken)
+
+
+@dataclass(frozen=True)
+class SettingsSource:
+    """What a packaged localizer's settings are read from: ``overrides`` on top of ``params_file``, which is
+    read on top of the packaged file when ``layered`` (a bag's file), else instead of it (None: the packaged
+    one). ``declared_noise``: a bag's declared odometry noise may set the motion noise."""
+
+    name: str
+    overrides: Mapping[str, Any]
+    params_file: Path | None = None
+    layered: bool = False
+    declared_noise: bool = True
+
+
+def _spec(source: SettingsSource) -> LocalizerSpec:
+    plugin = registry.plugin(source.name)
+    path, values = source.params_file, dict(source.overrides)
+    if source.layered and path is not None:  # a bag's file on top of the packaged one, as two --params-file
+        values, path = {**read_params_file(path, source.name), **values}, None
+    node_settings, settings = plugin.load_settings(values, params_file=path)
+    return LocalizerSpec(
+        name=source.name,
+        factory=functools.partial(_plugin_factory, source.name, settings),
+        uses_camera=plugin.uses_camera,
+        camera_cue=plugin.reads_camera_cue(settings),
+        mount=node_settings.mount,
+        skip=dict(plugin.bench_skip),
+        skip_global=dict(plugin.bench_skip_global),
+        source=source,
+    )
 
 
 def bench_params_file(plugin: registry.LocalizerPlugin, bag_name: str) -> str | None:
@@ -79,7 +125,8 @@ def _plugin_factory(name: str, settings: Any) -> Any:
 
 
 def registry_spec(
-    name: str, overrides: Mapping[str, Any] | None = None, params_file: Path | None = None
+    name: str, overrides: Mapping[str, Any] | None = None, params_file: Path | None = None, *,
+    declared_noise: bool = True,
 ) -> LocalizerSpec:
     """The spec of a packaged localizer: its settings from ``config/<name>.yaml`` and ``overrides``.
 
@@ -87,6 +134,7 @@ def registry_spec(
     params file read on top of the packaged one (as a second ``--params-file``; ``overrides`` still on
     top), reached with :meth:`LocalizerSpec.for_bag`.
     ``params_file`` (``rls_bench --params-file``, ``--profile``): this file for every bag instead.
+    ``declared_noise`` False (``--odometry-noise params``): the motion noise stays the params file's on every bag.
 
     Raises:
         SettingsError: an override names no parameter of the localizer (a typo would silently do nothing).
@@ -97,23 +145,10 @@ def registry_spec(
     if unknown:
         raise SettingsError(f"{name} has no parameter {', '.join(map(repr, unknown))} (see {name} --help)")
 
-    def spec(params_file: str | Path | None, layered: bool = False) -> LocalizerSpec:
-        path = registry.config_dir() / params_file if params_file is not None else None
-        values = dict(overrides or {})
-        if layered and path is not None:  # a bag's file on top of the packaged one, as two --params-file
-            values = {**read_params_file(path, name), **values}
-            path = None
-        node_settings, settings = plugin.load_settings(values, params_file=path)
-        return LocalizerSpec(
-            name=name,
-            factory=functools.partial(_plugin_factory, name, settings),
-            uses_camera=plugin.uses_camera,
-            camera_cue=plugin.reads_camera_cue(settings),
-            mount=node_settings.mount,
-            skip=dict(plugin.bench_skip),
-            skip_global=dict(plugin.bench_skip_global),
-            params=None if params_file is None else str(params_file),
-        )
+    def spec(file: str | Path | None, layered: bool = False) -> LocalizerSpec:
+        path = registry.config_dir() / file if file is not None else None
+        made = _spec(SettingsSource(name, dict(overrides or {}), path, layered, declared_noise))
+        return dataclasses.replace(made, params=None if file is None else str(file))
 
     if params_file is not None:
         if not Path(params_file).is_file():

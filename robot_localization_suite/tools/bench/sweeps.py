@@ -58,7 +58,7 @@ def _label(name: str, point: Mapping[str, Any]) -> str:
 
 def sweep_specs(
     name: str, sweep: Mapping[str, Sequence[Any]], overrides: Mapping[str, Any] | None = None,
-    params_file: Path | None = None,
+    params_file: Path | None = None, *, declared_noise: bool = True,
 ) -> list[LocalizerSpec]:
     """One spec per point of the grid of ``sweep`` (param -> values), ``overrides`` beneath it.
 
@@ -69,7 +69,7 @@ def sweep_specs(
     specs = []
     for values in itertools.product(*(sweep[p] for p in params)):
         point = dict(zip(params, values, strict=True))
-        spec = registry_spec(name, {**(overrides or {}), **point}, params_file)
+        spec = registry_spec(name, {**(overrides or {}), **point}, params_file, declared_noise=declared_noise)
         label = _label(name, point)
         swept = {f"{name}.{p}": v for p, v in point.items()}
         per_bag = {glob: dataclasses.replace(s, name=label, sweep=swept) for glob, s in spec.per_bag.items()}

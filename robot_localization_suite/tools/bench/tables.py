@@ -96,6 +96,8 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
                     notes.append(f"{key} {_fmt(fields[key])}")
             if fields.get("params"):
                 notes.append(f"params {fields['params']}")
+            if fields.get("odometry_noise"):
+                notes.append(f"odometry noise {fields['odometry_noise']}")
             if fields.get("truncated"):
                 notes.append("truncated by --max-seconds")
             if fields.get("recovered"):
