@@ -128,6 +128,31 @@ def test_a_kidnapping_to_a_place_the_scan_tells_apart_is_recovered_within_two_up
     assert all(dxy < 0.3 and dtheta < 0.15 for dxy, dtheta in after[1:]), after
 
 
+@pytest.mark.parametrize("min_explained", [0.9, 0.0])
+def test_a_candidate_the_map_explains_poorly_is_no_evidence_against_the_estimate(
+        office: GridMap, min_explained: float) -> None:
+    """After a kidnapping the only candidate is the true place shifted by 0.6 m: better than the stale estimate,
+    but most of the scan's end points miss the map there. It counts only when the gate is off."""
+    kidnap = 60
+    run = drive(office, steps=80, seed=6, kidnap_step=kidnap, kidnap_index=9)
+    shift = np.array([0.6, 0.0, 0.0])
+
+    def shifted(scan: Scan) -> Estimate:
+        return _fake(scan.stamp, compose(run.truth[np.searchsorted(run.stamps, scan.stamp)], shift)[None, :])
+
+    settings = _settings(Path("unused"), switch_min_explained=min_explained)
+    hybrid = HybridLocalizer(settings, sources=[ProposalSource("shifted", shifted)])
+    hybrid.set_map(office)
+    outputs = _replay(hybrid, run)
+    after = [estimate.details for k, estimate in outputs if k >= kidnap]
+    assert len(after) >= 3
+    evidence = max(details.get("switch_evidence", 0.0) for details in after)
+    if min_explained > 0.0:
+        assert evidence == 0.0  # the map cannot vouch for the candidate: it is left out
+    else:
+        assert evidence > 0.0  # without the gate the shifted place outscores the stale estimate
+
+
 # -- twin places --------------------------------------------------------------------------------------
 def _twin_corridor() -> GridMap:
     """12 m x 3 m, point-symmetric about its centre (x, y, theta) -> (12 - x, 3 - y, theta + pi) but for a

@@ -41,6 +41,7 @@ from ..grid_map import GridMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
 from ..mcl.localizer import MonteCarloLocalizer
+from ..metrics import map_coverage
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
@@ -322,6 +323,11 @@ class HybridLocalizer:
         weights = self.mcl.weights
         outside = np.array([weights[self._near(self.mcl.particles, pose)].sum() < s.support_weight for pose in back],
                            dtype=bool)
+        if s.switch_min_explained > 0.0 and outside.any() and self.grid_map is not None:
+            explained = map_coverage(self.grid_map, pool[outside], scan.angles,
+                                     np.broadcast_to(scan.ranges, (int(outside.sum()), len(scan.ranges))),
+                                     range_max=scan.range_max, range_min=scan.range_min)
+            outside[outside] = ~(explained < s.switch_min_explained)  # NaN (no hit) cannot be judged: kept
         if not outside.any() or not np.isfinite(advantage[outside]).any():
             self._evidence, self._better_count = 0.0, 0
             return {"switch_evidence": 0.0}

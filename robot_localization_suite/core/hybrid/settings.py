@@ -75,6 +75,10 @@ class HybridSettings(Settings):
         0.35, "... and this heading difference ...", unit="rad", low=0.0, low_open=True, high=math.pi)
     support_weight: float = setting(
         0.01, "... hold at least this share of the weight", low=0.0, high=1.0)
+    switch_min_explained: float = setting(
+        0.9, "a candidate outside the support counts as evidence against the estimate only when at least this "
+        "share of the scan's end points lie within two cells of a mapped obstacle there: a place the map cannot "
+        "vouch for is no reason to leave the estimate; 0: any candidate (docs/hybrid.md)", low=0.0, high=1.0)
     inject_fraction: float = setting(
         0.5, "share of the particles replaced by draws around a clearly better candidate", low=0.0, low_open=True,
         high=1.0)
