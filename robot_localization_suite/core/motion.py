@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -264,7 +263,7 @@ def read_odometry_noise(text: str) -> dict[str, float]:
     if not isinstance(declared, dict) or declared.get("model") != "odometry":
         raise ValueError(f"odometry noise declaration must be of model 'odometry', got {text!r}")
     alphas = {name: _number(name, declared.get(name)) for name in _ALPHA_NAMES}
-    _check_alphas(SimpleNamespace(**alphas), _ALPHA_NAMES)  # finite and >= 0, or a ValueError naming the one that is not
+    OdometryMotionModel(alphas["alpha1"], alphas["alpha2"], alphas["alpha3"], alphas["alpha4"])  # its own checks
     return alphas
 
 

@@ -143,7 +143,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--odometry-noise", choices=("declared", "params"), default="declared",
                         help="declared (default): a bag that declares the noise of its /odom (carmen_to_bag writes it "
                         "into the metadata) gives it to every localizer with an odometry motion model (mcl_baseline's "
-                        "and the hybrid's alpha1..alpha4) unless --set names them; params: the params files' values")
+                        "tracking_alpha1..4, the hybrid's mcl.tracking_alpha1..4) unless --set names them; params: "
+                        "the params files' values")
     parser.add_argument("--params-file", dest="params_files", action="append", default=[], metavar="NAME=PATH",
                         help="read NAME's parameters from PATH for every bag instead of config/NAME.yaml (and of its "
                         "per-bag files); --set still applies on top")

@@ -100,11 +100,7 @@ def finish_replay(
     if scores is not None and scan_coverage is not None:
         fields.update(run_coverage_fields(scores))
     fields["map"] = map_source
-    if spec.params is not None:
-        fields["params"] = spec.params
-    if spec.odometry_noise:
-        fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
-    fields.update(_sweep_fields(spec))
+    fields.update(_spec_fields(spec))
     fields["wall_s"] = round(seconds, 1)
     line = f"rls_bench: {reference.name} / {spec.name}: {one_line(fields)}"
     (say or functools.partial(print, file=sys.stderr, flush=True))(line)
@@ -121,6 +117,14 @@ def finish_replay(
 
 def _sweep_fields(spec: LocalizerSpec) -> dict[str, Any]:
     return {"sweep": dict(spec.sweep)} if spec.sweep else {}
+
+
+def _spec_fields(spec: LocalizerSpec) -> dict[str, Any]:
+    """What a run reports of its spec: the params file, the declared odometry noise it took, the sweep point."""
+    fields: dict[str, Any] = {} if spec.params is None else {"params": spec.params}
+    if spec.odometry_noise:
+        fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
+    return {**fields, **_sweep_fields(spec)}
 
 
 def global_fix_task(reference: BagReference, spec: LocalizerSpec, grid_map: GridMap | None, *, every: int,
@@ -154,11 +158,7 @@ def finish_global_fixes(
     if result.error:
         return {"mode": "global_fixes", "error": result.error}, None
     fields = summarize_global_fixes(result, reference, every=every, map_source=map_source)
-    if spec.params is not None:
-        fields["params"] = spec.params
-    if spec.odometry_noise:
-        fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
-    fields.update(_sweep_fields(spec))
+    fields.update(_spec_fields(spec))
     scan_coverage = coverage.get(reference, grid_map, map_source, spec.mount)
     scores = global_fix_scores(result, scan_coverage)
     if scan_coverage is not None:
