@@ -27,6 +27,7 @@ from robot_localization_suite.core.mcl.rivals import RivalTracker
 from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
+from robot_localization_suite.core.se2 import angle_difference
 
 
 @pytest.fixture(scope="module")
@@ -217,6 +218,29 @@ def test_a_global_start_keeps_several_hypotheses_after_the_first_scan(office: Gr
     # adaptive tempering: at least 10 % of 20000 particles stay effective; without it a handful does
     assert first_update(0.1) >= 0.1 * 20000 * 0.97
     assert first_update(0.0) < 200
+
+
+def test_a_global_start_draws_its_cloud_where_the_first_scan_fits(office: GridMap, run: Drive) -> None:
+    def near_truth(candidates: int, reinitialize: bool) -> int:
+        # no resampling after the first scan: the cloud is what was drawn
+        localizer = MonteCarloLocalizer(MclSettings(max_particles=20000, global_start_candidates=candidates,
+                                                    resample_interval=2, random_seed=1), office)
+        if reinitialize:  # after a set_initial_pose, a reinitialization is a global start again
+            localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))
+            localizer.reinitialize()
+        before = localizer.particles.copy()  # the uniform cloud, until the first scan
+        assert len(before) == 20000 and np.all(office.is_free(before[:, :2]))
+        localizer.on_scan(run.scans[0])
+        drawn = localizer.particles
+        assert np.all(office.is_free(drawn[:, :2]))
+        truth = run.truth[0]
+        close = np.hypot(drawn[:, 0] - truth[0], drawn[:, 1] - truth[1]) < 0.3
+        return int(np.sum(close & (np.abs(angle_difference(drawn[:, 2], truth[2])) < 0.2)))
+
+    for reinitialize in (False, True):
+        # nav2's uniform cloud puts a handful of particles near the true pose; the best tenth of ten times as many
+        # draws puts several times as many there
+        assert near_truth(10, reinitialize) >= 3 * max(near_truth(1, reinitialize), 1)
 
 
 def test_measurement_recovery_sampling_injects_poses_that_fit_the_scan(office: GridMap, run: Drive) -> None:
@@ -565,7 +589,8 @@ _TWIN_WAY = np.array([[2.5, 2.5], [4.5, 3.0], [3.0, 3.8], [2.5, 2.5], [4.5, 2.0]
 def test_twin_rooms_stay_ambiguous_until_the_scans_differ(seed: int) -> None:
     """After a global start in one of two identical rooms the filter must not claim LOCALIZED: the other
     room stays a rival (among the candidates) until the robot sees what tells them apart; then it is
-    LOCALIZED at the truth. Without rivals, resampling drops one twin and the filter claims LOCALIZED."""
+    LOCALIZED at the truth. Without rivals (from nav2's uniform start), resampling drops one twin and the filter
+    claims LOCALIZED."""
     rooms = _twin_rooms()
     run = drive(rooms, steps=420, seed=2, waypoints=_TWIN_WAY)
     twin_phase = run.truth[:, 1] < 4.5  # in the first room, the end room out of sight
@@ -583,7 +608,7 @@ def test_twin_rooms_stay_ambiguous_until_the_scans_differ(seed: int) -> None:
     k, last = outputs[-1]
     assert last.status is LocalizerStatus.LOCALIZED and pose_error(last.pose, run.truth[k])[0] < 0.2
 
-    without = [e for k, e in replay(max_rivals=0) if twin_phase[k]]
+    without = [e for k, e in replay(max_rivals=0, global_start_candidates=1) if twin_phase[k]]
     assert any(e.status is LocalizerStatus.LOCALIZED for e in without)
 
 

@@ -321,7 +321,8 @@ class MonteCarloLocalizer:
             return
         init, self._pending = self._pending, None
         count = self.settings.max_particles
-        if init.pose is None:
+        global_start = init.pose is None
+        if global_start:
             self.particles = self.grid_map.sample_free_poses(count, self.rng)
         else:
             covariance = init.covariance if init.covariance is not None else np.zeros((3, 3))
@@ -335,6 +336,7 @@ class MonteCarloLocalizer:
             self.particles = particles
         self.log_weights = np.zeros(count)
         self._reset_filter_state()
+        self._draw_at_first_scan = global_start and self.settings.global_start_candidates > 1
 
     def _reset_filter_state(self) -> None:
         """What a fresh cloud starts with: no odometry reference, recovery averages cleared."""
@@ -351,6 +353,7 @@ class MonteCarloLocalizer:
         self._ever_localized = False
         self._compact = False
         self._trusted = False  # the last update was LOCALIZED, with no other cluster of weight
+        self._draw_at_first_scan = False  # a global start's cloud is drawn from the scan's best poses (_update)
         self._scored_with_credit = False  # the last update scored unknown space with unknown_occupancy
         self.rivals.clear()
 
@@ -447,6 +450,11 @@ class MonteCarloLocalizer:
     def _update(self, stamp: float, beams: _Beams) -> Estimate:
         s = self.settings
         assert self._sensor is not None and self.grid_map is not None
+        if self._draw_at_first_scan:
+            self._draw_at_first_scan = False
+            count = len(self.particles)
+            self.particles, _ = self._best_fitting_poses(count, count * s.global_start_candidates, beams)
+            self.log_weights = np.zeros(len(self.particles))
         kept, skipped = self._skip_unexplained_beams(beams)
         beam_count = len(kept.angles)
         self._scored_with_credit = self._converged() and isinstance(self._sensor, LikelihoodFieldModel) \
@@ -644,12 +652,20 @@ class MonteCarloLocalizer:
         # measurement: the best-fitting of recovery_candidates x count uniform poses (sensor
         # resetting), the pool capped at max_particles to bound the cost of one update
         pool = max(count, min(count * s.recovery_candidates, s.max_particles))
-        candidates = self.grid_map.sample_free_poses(pool, self.rng)
+        candidates, scores = self._best_fitting_poses(count, pool, beams)
+        if s.recovery_requires_better and self._trusted:
+            return candidates[scores > better_than]
+        return candidates
+
+    def _best_fitting_poses(self, count: int, draws: int, beams: _Beams) -> tuple[NDArray[np.float64],
+                                                                                NDArray[np.float64]]:
+        """The ``count`` poses of ``draws`` uniform ones over free space that explain ``beams`` best, and their
+        log-likelihoods (sensor resetting, Lenser & Veloso 2000; docs/mcl.md)."""
+        assert self.grid_map is not None
+        candidates = self.grid_map.sample_free_poses(draws, self.rng)
         scores = self._scan_log_likelihood(candidates, beams)
         best = np.argpartition(-scores, count - 1)[:count]
-        if s.recovery_requires_better and self._trusted:
-            best = best[scores[best] > better_than]
-        return candidates[best]
+        return candidates[best], scores[best]
 
     def _injection_fraction(self) -> float:
         """Augmented MCL's share of random particles, ``max(0, 1 - w_fast / w_slow)``, 0 inside the dead band."""

@@ -121,6 +121,11 @@ class MclSettings(Settings):
     recovery_candidates: int = setting(
         10, "uniform draws scored per injected particle with recovery_sampling measurement (ours)", low=1, high=1000
     )
+    global_start_candidates: int = setting(
+        10, "a global start (no initial pose, reinitialize, a new map while not LOCALIZED) keeps, at its first scan, "
+        "the max_particles poses that explain the scan best among this many times as many uniform draws (sensor "
+        "resetting, ours); 1: nav2's uniform cloud", low=1, high=1000
+    )
     pf_err: float = setting(0.05, "KLD-sampling: bound on the Kullback-Leibler error (nav2 0.05)",
                             low=0.0, low_open=True, high=1.0)
     pf_z: float = setting(
