@@ -11,7 +11,7 @@ from matplotlib.patches import FancyArrowPatch, FancyBboxPatch  # noqa: E402
 BOXES = {
     "scan": (0.5, 6.0, "/scan, /odom", "#eeeeee"),
     "mcl": (4.5, 6.0, "MCL filter (mcl.*)\ntracking, rivals\n(weighed by each image too)", "#cfe2f3"),
-    "pil": (0.5, 3.6, "PIL global_fix (pil.*)\nin the update while not LOCALIZED,\na worker thread while LOCALIZED", "#d9ead3"),
+    "pil": (0.5, 3.6, "PIL global_fix (pil.*)\nin the update at start and while LOST,\na worker thread while tracking", "#d9ead3"),
     "ir": (0.5, 1.2, "IR global_fix (ir.*)\nworker thread, one query at a time", "#d9ead3"),
     "score": (4.5, 2.4, "one score: the filter's scan fit\n+ the images' IMA likelihood\n(log-odds over the estimate)",
               "#fff2cc"),

@@ -461,6 +461,46 @@ def test_prepare_gets_the_first_scan_and_counts_in_map_setup(kidnap_bag, tmp_pat
     assert plain["map_setup_s"] < PREPARE_SLEEP_S
 
 
+class IdlingEcho(EchoLocalizer):
+    """An echo with background work: records the idle time it is given and when."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.idle_s: list[float] = []
+        self.timeline: list[str] = []
+
+    def idle(self, seconds):
+        self.idle_s.append(seconds)
+        self.timeline.append("idle")
+
+    def on_scan(self, scan):
+        self.timeline.append("scan")
+        return super().on_scan(scan)
+
+
+def test_background_work_gets_the_log_time_between_messages_untimed(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    made: list[IdlingEcho] = []
+
+    def factory():
+        made.append(IdlingEcho(truth, constant_offset))
+        return made[-1]
+
+    from robot_localization_suite.tools.bench import replay as bench_replay
+
+    reference = bench.load_reference(path)
+    record = bench_replay.replay_localizer(reference, bench.LocalizerSpec("idler", factory),
+                                           reference.map_msg_grid, sample_rss=False)
+    (echo,) = made
+    # before every message but the first, the log time since the one before: the bag's span in all
+    assert all(seconds >= 0.0 for seconds in echo.idle_s) and len(echo.idle_s) > record.inputs
+    assert sum(echo.idle_s) == pytest.approx(truth.stamps[-1] - truth.stamps[0], abs=0.2)
+    # every scan after the first comes after an idle, and the idles are not in the update times
+    assert all(before == "idle" for before, now in zip(echo.timeline, echo.timeline[1:], strict=False)
+               if now == "scan")
+    assert record.update_ms.size == record.stamps.size
+
+
 def test_a_crashing_localizer_is_an_error_entry_not_a_crash(kidnap_bag, tmp_path):
     path, truth = kidnap_bag
 

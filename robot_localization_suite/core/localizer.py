@@ -26,6 +26,7 @@ __all__ = [
     "CameraLocalizer",
     "GlobalFixer",
     "Preparer",
+    "Idler",
 ]
 
 
@@ -144,3 +145,17 @@ class Preparer(Protocol):
 
     def prepare(self, scan: Scan) -> None:
         """Precompute what the first scan of this geometry would (after ``set_map``)."""
+
+
+@runtime_checkable
+class Idler(Protocol):
+    """Optional part of :class:`Localizer` for a method with work in background threads (``hybrid_localizer``).
+
+    On a robot that work runs while the node waits for its next input. A replay that feeds the next input at
+    once (``rls_bench``) calls ``idle(seconds)`` before each input with the log time since the previous one,
+    so that the work gets the time it would have had; a node never calls it (real time passes by itself).
+    """
+
+    def idle(self, seconds: float) -> None:
+        """Let background work run for at most ``seconds``; return as soon as none is left."""
+

@@ -88,10 +88,10 @@ class IntegrityMonitor:
                                         daemon=True)
         self._thread.start()
 
-    def wait(self) -> None:
-        """Until the worker's update has ended (tests)."""
+    def wait(self, timeout: float | None = None) -> None:
+        """Until the worker's update has ended, or ``timeout`` seconds have passed."""
         if self._thread is not None:
-            self._thread.join()
+            self._thread.join(timeout)
 
     def _update(self, scan: Scan, generation: int) -> None:
         with self._lock:

@@ -1,9 +1,9 @@
 """The hybrid localizer: the MCL filter tracks, single-scan global fixes propose (``hybrid_localizer``).
 
 Made of the existing methods, not copies of them: :class:`~..mcl.localizer.MonteCarloLocalizer`
-tracks; PIL's global fix (Lambert et al. 2020, in the update: milliseconds) and IR's (Aycard &
-Brouard, seed 001 IV-B, in a worker thread: never in the update) propose ranked poses
-(:mod:`.proposals`). Every candidate and the filter's estimate are scored against the scan by
+tracks; PIL's global fix (Lambert et al. 2020, milliseconds: in the update while the filter does not
+track, else in a worker asked after the update) and IR's (Aycard & Brouard, seed 001 IV-B, in a worker
+thread: never in the update) propose ranked poses (:mod:`.proposals`). Every candidate and the filter's estimate are scored against the scan by
 one measure, the filter's own scan fit (:meth:`~..mcl.localizer.MonteCarloLocalizer.scan_fit`),
 counted over the filter's ``effective_beams`` as it weighs its particles; the proposals are used
 
@@ -27,8 +27,10 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent import futures
 from concurrent.futures import Future
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -102,7 +104,10 @@ class HybridLocalizer:
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
         self._evidence = 0.0  # CUSUM of its log-odds (_recover)
         self._updates = 0
+        self._pil_answered = False  # PIL answered in this update (no worker query about the same scan)
         self._waiting: list[Proposal] = []  # background results not used by an update yet
+        # each source's latest candidates, moved by the odometry to the pose they are kept at (until it answers again)
+        self._latest: dict[str, tuple[NDArray[np.float64], NDArray[np.float64] | None]] = {}
         self.last_estimate: Estimate | None = None
 
     # -- Localizer protocol ---------------------------------------------------------------
@@ -154,6 +159,16 @@ class HybridLocalizer:
     def request_nomotion_update(self) -> None:
         self.mcl.request_nomotion_update()
 
+    def idle(self, seconds: float) -> None:
+        """Nothing comes for ``seconds`` (a replay's log time between two inputs, :class:`~..localizer.Idler`):
+        the queries, image matches and IAL update in flight get that long to end, as on a robot."""
+        deadline = time.monotonic() + max(0.0, seconds)
+        self.runner.settle(deadline)
+        if self._images:
+            futures.wait(list(self._images), timeout=max(0.0, deadline - time.monotonic()))
+        if self.monitor is not None:
+            self.monitor.wait(max(0.0, deadline - time.monotonic()))
+
     def close(self) -> None:
         """Stop the proposal workers."""
         self.runner.close()
@@ -203,9 +218,11 @@ class HybridLocalizer:
         due = gate.forced if odom is None else gate.due(odom)
         notes: dict[str, Any] = {}
         pool: NDArray[np.float64] = np.zeros((0, 3))
+        self._pil_answered = False
         if due:
             self._updates += 1
-            pool = self._proposals(scan, odom)
+            pool = self._proposals(scan, odom, in_update=not self._tracking(self.last_estimate)
+                                   or self.settings.pil_in_update_while_tracking)
             notes["proposals"] = len(pool)
             if len(pool):
                 fits = self.mcl.scan_fit(pool, scan)
@@ -216,7 +233,16 @@ class HybridLocalizer:
                     notes.update(self._recover(scan, pool, fits, odom))
         estimate = self.mcl.on_scan(scan)
         if estimate is not None:
-            estimate = self._integrity(scan, self._verdict(scan, estimate, pool))
+            verdict = self._verdict(scan, estimate, pool)
+            was_localized = self.last_estimate is not None and self.last_estimate.status is LocalizerStatus.LOCALIZED
+            if due and was_localized and verdict.status is not LocalizerStatus.LOCALIZED and not self._pil_answered:
+                # leaving LOCALIZED (a kidnapping, a rival place): what AMBIGUOUS lists must be about this scan
+                pool = self._proposals(scan, odom, in_update=True)
+                notes["proposals"] = len(pool)
+                verdict = self._verdict(scan, estimate, pool)
+            estimate = self._integrity(scan, verdict)
+        if due:
+            self._ask_in_background(scan, estimate)
         if self.monitor is not None and self.settings.wait_for_workers:
             self.monitor.submit(scan)
         if estimate is None:
@@ -252,6 +278,7 @@ class HybridLocalizer:
 
     def _restart(self) -> None:
         self._seed_pending = True
+        self._latest = {}
         self._better_count, self._evidence = 0, 0.0
 
     def _log_odds(self, fits: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -259,31 +286,57 @@ class HybridLocalizer:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.asarray(self.settings.mcl.effective_beams * np.log(fits), dtype=np.float64)
 
-    def _proposals(self, scan: Scan, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
-        """The candidates of this update ``(C, 3)``: in-update sources now, background results that have come
-        in (moved by the odometry since their scan); background sources asked again when due."""
+    def _proposals(self, scan: Scan, odom: NDArray[np.float64] | None, *, in_update: bool) -> NDArray[np.float64]:
+        """The candidates of this update ``(C, 3)``: each source's latest, moved by the odometry since their scan.
+
+        ``in_update``: PIL answers now, about this scan (at start, while the filter does not track, and when the
+        verdict leaves LOCALIZED: its answer is wanted at once). Otherwise the sources' answers come from their
+        workers, asked after the update before (:meth:`_ask_in_background`), and count from the first update
+        after they have come in.
+        """
         s = self.settings
-        localized = self.last_estimate is not None and self.last_estimate.status is LocalizerStatus.LOCALIZED
         found: list[Proposal] = []
-        for source in self.sources:
-            if not source.background:
-                # in the update when its answer is wanted at once; while LOCALIZED off the tracking path
-                if s.pil_every_updates > 0 and self._updates % s.pil_every_updates == 0:
-                    found.extend(self.runner.ask(source.name, scan,
-                                                 background=localized and not s.pil_in_update_while_localized))
-            elif not self.runner.in_flight(source.name) and (
-                    not localized or (s.ir_every_updates > 0 and self._updates % s.ir_every_updates == 0)):
-                self.runner.ask(source.name, scan)
+        if in_update and self._pil_due():
+            self._pil_answered = True
+            for source in self.sources:
+                if not source.background:
+                    found.extend(self.runner.ask(source.name, scan, background=False))
         found.extend(self._waiting)
         self._waiting = []
-        poses = []
         for proposal in found:
-            candidates = proposal.candidates[: s.proposals_scored]
-            then = self.mcl.odometry.at(proposal.stamp)
-            if proposal.stamp != scan.stamp and then is not None and odom is not None:
+            self._latest[proposal.source] = (proposal.candidates[: s.proposals_scored],
+                                             self.mcl.odometry.at(proposal.stamp))
+        poses = []
+        for name, (candidates, then) in self._latest.items():
+            if then is not None and odom is not None:
                 candidates = compose(candidates, relative(then, odom))
+                self._latest[name] = (candidates, odom)
             poses.append(candidates)
         return np.vstack(poses) if poses else np.zeros((0, 3))
+
+    def _tracking(self, estimate: Estimate | None) -> bool:
+        """Whether the filter tracks (one place, or rival places it weighs): proposals can then come from a worker."""
+        return (estimate is not None and not self._seed_pending
+                and estimate.status in (LocalizerStatus.LOCALIZED, LocalizerStatus.AMBIGUOUS))
+
+    def _pil_due(self) -> bool:
+        every = self.settings.pil_every_updates
+        return every > 0 and self._updates % every == 0
+
+    def _ask_in_background(self, scan: Scan, estimate: Estimate | None) -> None:
+        """After an update, the worker queries about its scan: they run while the node waits for the next scan,
+        off the tracking path. PIL while the filter tracks (unless it answered in this update); IR whenever its
+        worker is free while the filter was not LOCALIZED, at every ``ir_every_updates``-th update while it was."""
+        s = self.settings
+        localized = self.last_estimate is not None and self.last_estimate.status is LocalizerStatus.LOCALIZED
+        for source in self.sources:
+            if self.runner.in_flight(source.name):
+                continue
+            if not source.background:
+                if self._tracking(estimate) and self._pil_due() and not self._pil_answered:
+                    self.runner.ask(source.name, scan, background=True)
+            elif not localized or (s.ir_every_updates > 0 and self._updates % s.ir_every_updates == 0):
+                self.runner.ask(source.name, scan)
 
     def _seed(self, pool: NDArray[np.float64], fits: NDArray[np.float64]) -> None:
         """Start the filter around the ``seed_candidates`` best-fitting candidates, as many particles each."""

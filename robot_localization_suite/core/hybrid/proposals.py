@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
+from concurrent import futures
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import TypeVar
@@ -129,6 +131,12 @@ class ProposalRunner:
                 state.future = None
                 found.extend(self._result(state, future, state.future_stamp))
         return found
+
+    def settle(self, deadline: float) -> None:
+        """Wait until the background queries in flight have ended, or until ``deadline`` (``time.monotonic()``)."""
+        running = [state.future for state in self._states.values() if state.future is not None]
+        if running:
+            futures.wait(running, timeout=max(0.0, deadline - time.monotonic()))
 
     def _result(self, state: _SourceState, future: Future[Estimate], stamp: float) -> list[Proposal]:
         """The proposal of a background query (waiting for it to end); none when it failed or is of an old map."""

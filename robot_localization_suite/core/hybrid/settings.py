@@ -40,10 +40,10 @@ class HybridSettings(Settings):
     pil_every_updates: int = setting(
         1, "PIL's global fix (cheap) runs at every this many filter updates; 0: never", low=0,
         high=1_000_000)
-    pil_in_update_while_localized: bool = setting(
-        False, "PIL's global fix runs inside the update while LOCALIZED too; false: then in a worker thread, off "
-        "the tracking path (always inside the update while not LOCALIZED: at start and after a kidnapping its "
-        "answer is wanted at once)")
+    pil_in_update_while_tracking: bool = setting(
+        False, "PIL's global fix runs inside the update while LOCALIZED or AMBIGUOUS too; false: then in a worker "
+        "thread, off the tracking path, its answer used from the next update on (always inside the update at start "
+        "and while LOST: its answer is wanted at once)")
     ir_every_updates: int = setting(
         10, "while LOCALIZED, IR's global fix (precise, slow, in a worker thread) is asked for at every this many "
         "filter updates; otherwise whenever the worker is free; 0: only while not LOCALIZED", low=0, high=1_000_000)
@@ -91,7 +91,7 @@ class HybridSettings(Settings):
     ambiguity_angle: float = setting(
         0.5, "... or turned more than this from it", unit="rad", low=0.0, low_open=True, high=math.pi)
     wait_for_workers: bool = setting(
-        False, "reproducible replay: each worker's result (IR, PIL while LOCALIZED, the integrity monitor's IAL "
+        False, "reproducible replay: each worker's result (IR, PIL while tracking, the integrity monitor's IAL "
         "update) is taken at the next update, which waits for it if need be, instead of whenever it ends; the "
         "same bag then gives the same output on any machine and load, and an update's time includes the wait "
         "(docs/hybrid.md)")

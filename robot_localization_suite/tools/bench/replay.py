@@ -10,6 +10,7 @@ How a run is fed and timed: ``docs/benchmark.md``.
 from __future__ import annotations
 
 import logging
+import math
 import time
 import traceback
 from collections.abc import Callable
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from ...core import metrics
 from ...core.grid_map import GridMap
 from ...core.interval import angle_hull
-from ...core.localizer import Estimate, LocalizerStatus
+from ...core.localizer import Estimate, Idler, LocalizerStatus
 from .isolation import rss_mb
 from .prepare import prepare_localizer, prepare_scan
 from .reference import IMAGE_TOPIC, MAP_TOPIC, ODOM_TOPIC, REINITIALIZE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference
@@ -281,8 +282,14 @@ def replay_localizer(
         bar = tqdm(total=reference.sensor_counts.get(sensor_topic) or None, desc=prefix, unit="msg", leave=False,
                    disable=None)
 
+    # Work a localizer does in background threads gets the log time between two messages, as on a robot
+    # (core/localizer.py Idler; docs/benchmark.md, "How a run works"); untimed, like the robot's idle time.
+    idler = timed if isinstance(timed, Idler) else None
+
     def on_message(item: BagMessage) -> None:
-        log_time[0] = item.stamp_ns * 1e-9
+        previous, log_time[0] = log_time[0], item.stamp_ns * 1e-9
+        if idler is not None and math.isfinite(previous):
+            idler.idle(log_time[0] - previous)
         if run_bag is not None:
             run_bag.write_input(item)
         if sample_rss and item.topic == sensor_topic:
