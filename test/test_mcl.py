@@ -23,7 +23,7 @@ from robot_localization_suite.core.filter.particles import (
 from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
-from robot_localization_suite.core.mcl.rivals import RivalTracker
+from robot_localization_suite.core.mcl.rivals import Rival, RivalTracker
 from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
@@ -610,6 +610,16 @@ def test_twin_rooms_stay_ambiguous_until_the_scans_differ(seed: int) -> None:
 
     without = [e for k, e in replay(max_rivals=0, global_start_candidates=1) if twin_phase[k]]
     assert any(e.status is LocalizerStatus.LOCALIZED for e in without)
+
+
+def test_the_winning_rival_is_removed_from_among_several() -> None:
+    """The filter removes a winning rival from its list by identity (its arrays cannot be compared as a
+    whole): with two rivals held, removing the second leaves the first."""
+    first = Rival(np.zeros((4, 3)), -1.0, np.zeros(3))
+    second = Rival(np.ones((4, 3)), 5.0, np.ones(3))
+    rivals = [first, second]
+    rivals.remove(second)
+    assert rivals == [first] and rivals[0] is first
 
 
 def test_a_rival_is_ruled_out_or_wins_by_its_summed_bayes_factors() -> None:

@@ -32,7 +32,7 @@ __all__ = ["Rival", "RivalTracker"]
 _SEPARATE_HEADING = math.pi / 4
 
 
-@dataclass
+@dataclass(eq=False)  # compared by identity: a rival is removed from its list as itself (arrays have no truth value)
 class Rival:
     """One hypothesis outside the cloud: its samples ``(M, 3)``, their best-scoring pose at the last scan and
     its log posterior odds against the cloud."""
