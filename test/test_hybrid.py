@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -277,21 +278,32 @@ def test_with_a_camera_a_twin_kidnapping_is_resolved_while_the_scans_still_canno
     assert seen[-1][1].details["camera_images"] == len(seen) + 10 and seen[-1][1].details["camera_image_errors"] == 0
 
 
-# -- proposal sources that are slow or fail --------------------------------------------------------
-def test_a_slow_proposal_source_never_delays_a_tracking_update(office: GridMap) -> None:
-    run = drive(office, steps=60, seed=8)
-    started, release, finished = threading.Event(), threading.Event(), threading.Event()
-    stamps: list[float] = []
+def _held_source(run: Drive, release: threading.Event, finished: threading.Event,
+                 started: threading.Event | None = None,
+                 stamps: list[float] | None = None) -> Callable[[Scan], Estimate]:
+    """A proposal source whose query holds until ``release`` is set, then answers the true pose of its scan;
+    ``finished`` is set when it ends, ``started`` when it starts, and ``stamps`` records the scans asked about."""
 
-    def slow(scan: Scan) -> Estimate:
-        stamps.append(scan.stamp)
-        started.set()
+    def held(scan: Scan) -> Estimate:
+        if stamps is not None:
+            stamps.append(scan.stamp)
+        if started is not None:
+            started.set()
         try:
             release.wait(60.0)  # not a timing: the test releases it; the bound only ends a broken run
             return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
         finally:
             finished.set()
 
+    return held
+
+
+# -- proposal sources that are slow or fail --------------------------------------------------------
+def test_a_slow_proposal_source_never_delays_a_tracking_update(office: GridMap) -> None:
+    run = drive(office, steps=60, seed=8)
+    started, release, finished = threading.Event(), threading.Event(), threading.Event()
+    stamps: list[float] = []
+    slow = _held_source(run, release, finished, started, stamps)
     hybrid = HybridLocalizer(_settings(Path("unused")), sources=[ProposalSource("slow", slow, background=True)])
     hybrid.set_map(office)
     hybrid.set_initial_pose(run.truth[0], TIGHT)
@@ -328,34 +340,28 @@ def test_idle_time_lets_a_worker_answer_before_the_next_update_and_no_longer_tha
     meanwhile and counts at the next update; one that needs longer is left running."""
     run = drive(office, steps=60, seed=8)
     release, finished = threading.Event(), threading.Event()
-
-    def held(scan: Scan) -> Estimate:
-        try:
-            release.wait(60.0)  # not a timing: the test releases it; the bound only ends a broken run
-            return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
-        finally:
-            finished.set()
-
+    held = _held_source(run, release, finished)
     hybrid = HybridLocalizer(_settings(Path("unused")), sources=[ProposalSource("held", held, background=True)])
     hybrid.set_map(office)
     hybrid.set_initial_pose(run.truth[0], TIGHT)
-    k = 0
-    estimate = None
-    while estimate is None:
-        hybrid.on_odometry(run.stamps[k], run.odometry[k])
-        estimate = hybrid.on_scan(run.scans[k])
-        k += 1
+
+    def next_update(k: int) -> tuple[int, Estimate]:
+        """The run's steps from ``k`` until the hybrid updates: the step after it and the estimate."""
+        while True:
+            hybrid.on_odometry(run.stamps[k], run.odometry[k])
+            estimate = hybrid.on_scan(run.scans[k])
+            k += 1
+            if estimate is not None:
+                return k, estimate
+
+    k, estimate = next_update(0)
     assert estimate.details["held_in_flight"] is True  # asked after the update, about its scan
     hybrid.idle(0.01)
     assert not finished.is_set()  # idle returns after the time it was given, the query still running
     release.set()
     hybrid.idle(60.0)
     assert finished.is_set()  # ... and waits for it when given the time (returning once it has ended)
-    following = None
-    while following is None:
-        hybrid.on_odometry(run.stamps[k], run.odometry[k])
-        following = hybrid.on_scan(run.scans[k])
-        k += 1
+    _, following = next_update(k)
     hybrid.close()
     assert following.details["proposals"] >= 1  # its answer counts at the next update
 

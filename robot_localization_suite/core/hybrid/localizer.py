@@ -3,9 +3,10 @@
 Made of the existing methods, not copies of them: :class:`~..mcl.localizer.MonteCarloLocalizer`
 tracks; PIL's global fix (Lambert et al. 2020, milliseconds: in the update while the filter does not
 track, else in a worker asked after the update) and IR's (Aycard & Brouard, seed 001 IV-B, in a worker
-thread: never in the update) propose ranked poses (:mod:`.proposals`). Every candidate and the filter's estimate are scored against the scan by
-one measure, the filter's own scan fit (:meth:`~..mcl.localizer.MonteCarloLocalizer.scan_fit`),
-counted over the filter's ``effective_beams`` as it weighs its particles; the proposals are used
+thread: never in the update) propose ranked poses (:mod:`.proposals`). Every candidate and the filter's
+estimate are scored against the scan by one measure, the filter's own scan fit
+(:meth:`~..mcl.localizer.MonteCarloLocalizer.scan_fit`), counted over the filter's ``effective_beams`` as
+it weighs its particles; the proposals are used
 
 * to start: at start and on :meth:`reinitialize` the filter is drawn around the best candidates
   instead of uniformly over the map;
