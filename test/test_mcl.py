@@ -269,6 +269,16 @@ def test_fit_averages_start_as_running_means() -> None:
     for value in (0.3, 0.9):
         frozen.update(value)
     assert frozen.value == 0.3
+    # a value backed by part of a scan moves the average by that part; one backed by none leaves it
+    full, half = _RunningAverage(0.1), _RunningAverage(0.1)
+    for average in (full, half):
+        average.update(0.5)
+    full.update(0.1)
+    half.update(0.1, evidence=0.5)
+    assert 0.1 < full.value < half.value < 0.5
+    before = half.value
+    half.update(0.0, evidence=0.0)
+    assert half.value == before
 
 
 # -- bad input ----------------------------------------------------------------------------------
@@ -431,6 +441,11 @@ def test_with_a_partial_map_unknown_space_scores_as_a_half_likely_obstacle() -> 
     assert off[0] == pytest.approx(math.log(0.5 * 0.5 + 0.05), abs=1e-6)
     hit = model.log_likelihood(pose, np.array([0.0]), np.array([1.05]), max_range=10.0, partial_map=True)
     assert hit[0] == pytest.approx(math.log(0.5 + 0.05), abs=1e-6)
+    # the credited beams are the ones the map cannot judge: counted and summed apart (off the map included)
+    both = model.partial_log_likelihood(pose, np.array([math.pi, 0.0, math.pi / 2]), np.array([1.45, 1.05, 5.0]),
+                                        max_range=10.0)
+    assert both.unjudged_count[0] == 2 and both.total[0] == pytest.approx(partial[0] + hit[0] + off[0])
+    assert both.unjudged_sum[0] == pytest.approx(partial[0] + off[0])
     # free known space is unchanged: no slope that pulls end points towards the unknown
     free = np.array([[1.5, 1.0, 0.0]])
     assert model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0, partial_map=True)[0] == \
@@ -610,6 +625,32 @@ def test_twin_rooms_stay_ambiguous_until_the_scans_differ(seed: int) -> None:
 
     without = [e for k, e in replay(max_rivals=0, global_start_candidates=1) if twin_phase[k]]
     assert any(e.status is LocalizerStatus.LOCALIZED for e in without)
+
+
+def test_a_look_alike_elsewhere_does_not_take_the_cloud_while_the_scans_fall_into_unexplored_space() -> None:
+    """The robot drives from its mapped room up a passage into an end room the map never explored; the
+    other twin's end room, mapped, explains those scans. The beams that end in the unexplored space say
+    nothing against the cloud, so they must neither set off Augmented MCL's injection nor let injected
+    look-alikes in (``recovery_unknown_neutral``): the track holds through the unknown and is at the truth
+    once the robot is back. Counted in full, the injection moved the cloud to the mapped twin, 12 m off."""
+    world = _twin_rooms()
+    data, resolution = world.data.copy(), world.resolution
+    data[round(4.5 / resolution):, round(17.0 / resolution):] = -1  # the second twin's passage ...
+    data[round(7.0 / resolution):, round(14.5 / resolution):] = -1  # ... and end room, never explored
+    mapped = GridMap(data, resolution, world.origin)
+    way = np.array([[2.5, 2.5], [4.8, 2.2], [6.0, 3.8], [6.0, 7.0], [5.2, 8.5], [6.0, 7.0], [6.0, 3.8],
+                    [2.5, 2.5]]) + (12.0, 0.0)
+    run = drive(world, steps=300, seed=0, waypoints=way)
+    assert run.truth[:, 1].max() > 8.0  # the drive reaches the unexplored end room
+
+    def errors(**options: bool) -> np.ndarray:
+        localizer = MonteCarloLocalizer(MclSettings(random_seed=0, **options), mapped)
+        localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
+        return _errors(_replay(localizer, run), run)[:, 0]
+
+    neutral = errors()
+    assert neutral.max() < 3.0 and neutral[-1] < 0.5
+    assert errors(recovery_unknown_neutral=False)[-1] > 10.0
 
 
 def test_the_winning_rival_is_removed_from_among_several() -> None:

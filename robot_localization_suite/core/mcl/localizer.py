@@ -40,7 +40,7 @@ from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
 from ..se2 import wrap_angle
 from .rivals import RivalTracker
-from .sensor_models import BeamModel, LikelihoodFieldModel
+from .sensor_models import BeamModel, LikelihoodFieldModel, PartialMapScores
 from .settings import LASER_MODEL_TYPES, RECOVERY_SAMPLINGS, ROBOT_MODEL_TYPES, MclSettings
 
 __all__ = ["MclSettings", "MonteCarloLocalizer", "LASER_MODEL_TYPES", "ROBOT_MODEL_TYPES", "RECOVERY_SAMPLINGS"]
@@ -91,13 +91,18 @@ class _RunningAverage:
         self._decay = 1.0
         self.value = 0.0
 
-    def update(self, x: float) -> None:
+    def update(self, x: float, evidence: float = 1.0) -> None:
+        """Move towards ``x`` by ``alpha * evidence``: ``evidence`` in [0, 1] is how much of a full value ``x`` is
+        (0 leaves the average as it is)."""
         if self.alpha == 0.0:
             if self.value == 0.0:
                 self.value = float(x)
             return
-        self._raw += self.alpha * (float(x) - self._raw)
-        self._decay *= 1.0 - self.alpha
+        if evidence <= 0.0:
+            return
+        rate = self.alpha * min(1.0, evidence)
+        self._raw += rate * (float(x) - self._raw)
+        self._decay *= 1.0 - rate
         self.value = self._raw / (1.0 - self._decay)
 
 
@@ -293,6 +298,7 @@ class MonteCarloLocalizer:
         self.particles = np.vstack([kept, self._draw_around(poses, weights, injected, std_xy, std_yaw)])
         self.log_weights = np.zeros(count)
         self.counters.injected_particles += injected
+        self._moved_since_compact = False  # particles the motion model did not put there
         return injected
 
     def _draw_around(self, poses: NDArray[np.float64], weights: NDArray[np.float64], count: int,
@@ -352,6 +358,7 @@ class MonteCarloLocalizer:
         self._scan_fit = 0.0
         self._ever_localized = False
         self._compact = False
+        self._moved_since_compact = False  # compact once, and since then no particle but by the motion model
         self._trusted = False  # the last update was LOCALIZED, with no other cluster of weight
         self._draw_at_first_scan = False  # a global start's cloud is drawn from the scan's best poses (_update)
         self._scored_with_credit = False  # the last update scored unknown space with unknown_occupancy
@@ -423,7 +430,7 @@ class MonteCarloLocalizer:
         """Whether the filter has converged (nav2 skips beams only then): at the last update, the heaviest
         cluster held most of the weight, compactly. A spread cloud reads unknown space as nav2 does, so
         that global localization is not drawn into the map's unexplored parts."""
-        return self._compact
+        return self._compact or (self.settings.recovery_unknown_neutral and self._moved_since_compact)
 
     def _skip_unexplained_beams(self, beams: _Beams) -> tuple[_Beams, _Beams | None]:
         """nav2's beam skipping: set aside the beams that few particles place near a mapped obstacle.
@@ -459,7 +466,14 @@ class MonteCarloLocalizer:
         beam_count = len(kept.angles)
         self._scored_with_credit = self._converged() and isinstance(self._sensor, LikelihoodFieldModel) \
             and s.unknown_occupancy > 0.0
-        log_likelihood = self._scan_log_likelihood(self.particles, kept)
+        partial: PartialMapScores | None = None
+        if self._scored_with_credit and s.recovery_unknown_neutral:
+            assert isinstance(self._sensor, LikelihoodFieldModel)
+            partial = self._sensor.partial_log_likelihood(self.particles, kept.angles, kept.ranges,
+                                                          max_range=kept.max_range)
+            log_likelihood = partial.total.copy()
+        else:
+            log_likelihood = self._scan_log_likelihood(self.particles, kept)
         floor = self._sensor.floor_log_likelihood(beams.max_range)
         impossible = ~self._pose_is_possible(self.particles)
         log_likelihood[impossible] = beam_count * floor
@@ -472,8 +486,10 @@ class MonteCarloLocalizer:
         # Augmented MCL: posterior-weighted geometric-mean per-beam likelihood (docs/mcl.md), over the
         # beams that weighted the particles, as nav2; it drives the injection.
         fit = float((weights * np.exp(log_likelihood / beam_count)).sum())
-        self._fit_slow.update(fit)
-        self._fit_fast.update(fit)
+        injection_fit, evidence = (fit, 1.0) if partial is None else \
+            self._judged_fit(weights, partial, beam_count, floor, impossible)
+        self._fit_slow.update(injection_fit, evidence)
+        self._fit_fast.update(injection_fit, evidence)
         self.w_slow, self.w_fast = self._fit_slow.value, self._fit_fast.value
         # The status judges the fit over every beam, the skipped ones too: a kidnapping must not hide
         # behind beam skipping (docs/mcl.md, "Partial maps").
@@ -503,12 +519,33 @@ class MonteCarloLocalizer:
                       or effective < s.resample_effective_fraction * len(weights))
         if self._updates_since_resample >= s.resample_interval and (degenerate or self._injection_fraction() > 0.0):
             self._updates_since_resample = 0
-            next_count, injected, bins = self._resample(weights, beams, float(all_beams.max()))
+            bar = self._injection_bar(all_beams, len(beams.angles), partial, beam_count, impossible)
+            next_count, injected, bins = self._resample(weights, beams, bar)
             estimate = replace(estimate, details={**estimate.details, "particles_next": next_count,
                                                   "injected": injected, "kld_bins": bins})
         self.counters.updates += 1
         self.last_estimate = estimate
         return estimate
+
+    @staticmethod
+    def _judged_fit(weights: NDArray[np.float64], partial: PartialMapScores, beam_count: int, floor: float,
+                    impossible: NDArray[np.bool_]) -> tuple[float, float]:
+        """The injection's fit over the beams the map can judge, and their posterior-weighted share of the scan.
+
+        A scan that falls into space the map never saw says nothing against the particles; counted in full
+        (as nav2), its credited beams lower the fit and set off Augmented MCL's injection, which then fills
+        the cloud with places whose mapped walls happen to explain it (docs/mcl.md, "Partial maps").
+        """
+        judged_count = (beam_count - partial.unjudged_count).astype(np.float64)
+        judged_sum = partial.total - partial.unjudged_sum
+        judged_count[impossible] = beam_count
+        judged_sum[impossible] = beam_count * floor
+        mass = weights * judged_count
+        total = float(mass.sum())
+        if total <= 0.0:
+            return 0.0, 0.0
+        per_beam = np.exp(judged_sum / np.maximum(judged_count, 1.0))
+        return float((mass * per_beam).sum() / total), total / beam_count
 
     def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beam_count: int,
                   effective: float) -> Estimate:
@@ -531,6 +568,7 @@ class MonteCarloLocalizer:
         std_yaw = math.sqrt(max(float(covariance[2, 2]), 0.0))
         tight = best_weight >= 0.5 and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
         self._compact = tight
+        self._moved_since_compact = tight or self._moved_since_compact
         compact = tight and effective >= s.localized_min_effective_particles
         # The fit holds on average and for this scan (a kidnapping drops it at once; w_fast follows slowly).
         scan_slow, scan_fast = self._scan_fit_slow.value, self._scan_fit_fast.value
@@ -635,15 +673,38 @@ class MonteCarloLocalizer:
         self.particles = self._draw_around(winner.samples, np.ones(len(winner.samples)), count_now,
                                            0.25 * s.initial_std_xy, 0.25 * s.initial_std_yaw)
         self.log_weights = np.zeros(count_now)
+        self._moved_since_compact = False
         return True
 
-    def _recovery_poses(self, count: int, beams: _Beams, better_than: float) -> NDArray[np.float64]:
+    def _injection_bar(self, all_beams: NDArray[np.float64], all_count: int, partial: PartialMapScores | None,
+                       kept_count: int, impossible: NDArray[np.bool_]) -> float | None:
+        """The per-beam log-likelihood an injected draw must beat (``recovery_requires_better``); None: any draw.
+
+        With ``recovery_unknown_neutral`` (``partial`` given), the best particle's score with each beam the map
+        cannot judge counted at the slow average fit, what a beam scores at a right pose, whatever the status
+        when that particle has such beams: a scan that falls into space the map never saw is no reason to move
+        the cloud; a kidnapping still is, as the beams the map judges then contradict it. Otherwise, while
+        LOCALIZED, the best particle's score.
+        """
+        s = self.settings
+        if not (s.recovery_requires_better and s.recovery_sampling == "measurement"):
+            return None
+        if partial is not None and self.w_slow > 0.0:
+            neutral = partial.total - partial.unjudged_sum + partial.unjudged_count * math.log(self.w_slow)
+            neutral[impossible] = -np.inf
+            best = int(np.argmax(neutral))
+            if self._trusted or partial.unjudged_count[best] > 0:
+                return float(neutral[best]) / kept_count
+            return None  # the map judges the whole scan: the status decides, as below
+        if self._trusted:
+            return float(all_beams.max()) / all_count
+        return None
+
+    def _recovery_poses(self, count: int, beams: _Beams, better_than: float | None) -> NDArray[np.float64]:
         """At most ``count`` poses for Augmented-MCL injection (``recovery_sampling``).
 
-        With ``recovery_requires_better``, while the last update was LOCALIZED (its scan fit held),
-        only draws that explain the scan better than ``better_than`` (the best particle's
-        log-likelihood) are kept: a scan the map explains poorly at the true pose is no reason to
-        replace particles by worse ones. Once the fit collapses (a kidnapping) every draw counts.
+        With ``better_than`` (``_injection_bar``), only draws whose per-beam log-likelihood beats it are kept:
+        a scan the map explains poorly at the true pose is no reason to replace particles by worse ones.
         """
         assert self.grid_map is not None and self._sensor is not None
         s = self.settings
@@ -653,8 +714,8 @@ class MonteCarloLocalizer:
         # resetting), the pool capped at max_particles to bound the cost of one update
         pool = max(count, min(count * s.recovery_candidates, s.max_particles))
         candidates, scores = self._best_fitting_poses(count, pool, beams)
-        if s.recovery_requires_better and self._trusted:
-            return candidates[scores > better_than]
+        if better_than is not None:
+            return candidates[scores / len(beams.angles) > better_than]
         return candidates
 
     def _best_fitting_poses(self, count: int, draws: int, beams: _Beams) -> tuple[NDArray[np.float64],
@@ -672,7 +733,7 @@ class MonteCarloLocalizer:
         inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0.0 else 0.0
         return inject if inject >= self.settings.recovery_min_injection else 0.0
 
-    def _resample(self, weights: NDArray[np.float64], beams: _Beams, best_score: float) -> tuple[int, int, int]:
+    def _resample(self, weights: NDArray[np.float64], beams: _Beams, bar: float | None) -> tuple[int, int, int]:
         """KLD-sized low-variance resampling with Augmented-MCL injection; returns (count, injected, bins)."""
         s = self.settings
         assert self.grid_map is not None
@@ -699,13 +760,14 @@ class MonteCarloLocalizer:
         injected = int(self.rng.binomial(count, inject)) if inject > 0.0 else 0
         particles = self.particles[low_variance_resample(weights, count - injected, self.rng)]
         if injected:
-            recovered = self._recovery_poses(injected, beams, best_score)
+            recovered = self._recovery_poses(injected, beams, bar)
             if len(recovered) < injected:  # fewer draws beat the particles: the rest are resampled
                 extra = self.particles[low_variance_resample(weights, injected - len(recovered), self.rng)]
                 particles = np.vstack([particles, extra])
             injected = len(recovered)
             particles = np.vstack([particles, recovered])
             self.counters.injected_particles += injected
+            self._moved_since_compact = False
         self.particles = particles
         self.log_weights = np.zeros(len(particles))
         return count, injected, bins

@@ -20,6 +20,7 @@ Formulas and notes: docs/mcl.md.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -28,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..grid_map import GridMap
 from ..raycast import RayCaster
 
-__all__ = ["LikelihoodFieldModel", "BeamModel", "field_log_likelihood"]
+__all__ = ["LikelihoodFieldModel", "BeamModel", "PartialMapScores", "field_log_likelihood"]
 
 
 def _check_positive(name: str, value: float) -> None:
@@ -113,9 +114,10 @@ def _ray_is_clear(occupied, clearance, inverse_resolution, x0, y0, x1, y1):
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution,
-                        poses, beam_x, beam_y, off_map, closed_off_map, out):
+                        poses, beam_x, beam_y, off_map, closed_off_map, out, unjudged_sum, unjudged_count):
     """As _field_sum_kernel with ``table`` crediting open unknown space (and off the map, ``off_map``), but an
-    end point there counts only if the beam reaches it through no mapped obstacle (else ``closed_*``)."""
+    end point there counts only if the beam reaches it through no mapped obstacle (else ``closed_*``). The
+    credited beams (the map cannot judge them) are also summed and counted on their own, per pose."""
     height, width = table.shape
     for p in range(poses.shape[0]):
         x = poses[p, 0]
@@ -125,6 +127,8 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
         gx = (x - origin_x) * inverse_resolution
         gy = (y - origin_y) * inverse_resolution
         total = 0.0
+        credited = 0.0
+        credited_count = 0
         for b in range(beam_x.shape[0]):
             ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
             ix = int(math.floor(ex))
@@ -133,10 +137,15 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
             if inside and not open_unknown[iy, ix]:
                 total += table[iy, ix]
             elif _ray_is_clear(occupied, clearance, inverse_resolution, gx, gy, ex, ey):
-                total += table[iy, ix] if inside else off_map
+                value = table[iy, ix] if inside else off_map
+                total += value
+                credited += value
+                credited_count += 1
             else:  # through a wall: the unknown space behind it is no explanation
                 total += closed_table[iy, ix] if inside else closed_off_map
         out[p] = total
+        unjudged_sum[p] = credited
+        unjudged_count[p] = credited_count
 
 
 def _beam_offsets(angles: ArrayLike, ranges: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -181,6 +190,16 @@ def field_log_likelihood(
         out,
     )
     return out
+
+
+@dataclass(frozen=True)
+class PartialMapScores:
+    """Per pose ``(P,)``: the summed beam log-likelihood with unknown space credited (``total``), and the sum
+    and count of the credited beams, which the map cannot judge (``unjudged_sum``, ``unjudged_count``)."""
+
+    total: NDArray[np.float64]
+    unjudged_sum: NDArray[np.float64]
+    unjudged_count: NDArray[np.int64]
 
 
 class LikelihoodFieldModel:
@@ -271,22 +290,37 @@ class LikelihoodFieldModel:
         Returns:
             ``(P,)`` summed per-beam log-likelihoods.
         """
-        table, off_map = self.table(max_range, partial_map=partial_map)
         if not (partial_map and self.unknown_occupancy > 0.0):
+            table, off_map = self.table(max_range)
             return field_log_likelihood(
                 table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges, off_map
             )
+        return self.partial_log_likelihood(poses, angles, ranges, max_range=max_range).total
+
+    def partial_log_likelihood(
+        self, poses: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, max_range: float
+    ) -> PartialMapScores:
+        """``log_likelihood(..., partial_map=True)``, with the part of it the map cannot judge, per pose.
+
+        The unjudged beams are those credited with ``unknown_occupancy``: end points in open unknown
+        space or off the map that the beam reaches through no mapped obstacle (docs/mcl.md, "Partial maps").
+        """
+        if self.unknown_occupancy <= 0.0:
+            raise ValueError("partial_log_likelihood needs unknown_occupancy > 0")
+        table, off_map = self.table(max_range, partial_map=True)
         closed_table, closed_off_map = self.table(max_range)
         open_unknown, _ = self.grid_map.open_unknown()
         poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
         beam_x, beam_y = _beam_offsets(angles, ranges)
         out = np.empty(poses_arr.shape[0], dtype=np.float64)
+        unjudged_sum = np.empty_like(out)
+        unjudged_count = np.empty(poses_arr.shape[0], dtype=np.int64)
         origin = self.grid_map.origin
         _partial_sum_kernel(table, closed_table, open_unknown, self._occupied,
                             np.ascontiguousarray(self.grid_map.distance_field()), float(origin[0]), float(origin[1]),
                             1.0 / self.grid_map.resolution, poses_arr, beam_x, beam_y, float(off_map),
-                            float(closed_off_map), out)
-        return out
+                            float(closed_off_map), out, unjudged_sum, unjudged_count)
+        return PartialMapScores(out, unjudged_sum, unjudged_count)
 
     def beam_agreement(
         self, poses: ArrayLike, weights: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, distance: float

@@ -108,6 +108,11 @@ class MclSettings(Settings):
     recovery_alpha_fast: float = setting(
         0.1, "rate of the fast average of the scan fit (nav2 0.0, suggests 0.1)", low=0.0, high=1.0
     )
+    recovery_unknown_neutral: bool = setting(
+        True, "once converged, beams the map cannot judge (end points credited as open unknown space) are neutral "
+        "to the injection: the fit that drives it leaves them out and moves its averages by the share of beams it "
+        "judges, and with recovery_requires_better they count at the slow average fit, whatever the status; "
+        "false: they count as scored, as before (ours)")
     recovery_min_injection: float = setting(
         0.05, "random-particle fractions below this are not injected (ours)", low=0.0, high=1.0
     )
