@@ -298,7 +298,7 @@ class MonteCarloLocalizer:
         self.particles = np.vstack([kept, self._draw_around(poses, weights, injected, std_xy, std_yaw)])
         self.log_weights = np.zeros(count)
         self.counters.injected_particles += injected
-        self._moved_since_compact = False  # particles the motion model did not put there
+        self._moved_since_localized = False  # particles the motion model did not put there
         return injected
 
     def _draw_around(self, poses: NDArray[np.float64], weights: NDArray[np.float64], count: int,
@@ -358,7 +358,7 @@ class MonteCarloLocalizer:
         self._scan_fit = 0.0
         self._ever_localized = False
         self._compact = False
-        self._moved_since_compact = False  # compact once, and since then no particle but by the motion model
+        self._moved_since_localized = False  # LOCALIZED once, and since then no particle but by the motion model
         self._trusted = False  # the last update was LOCALIZED, with no other cluster of weight
         self._draw_at_first_scan = False  # a global start's cloud is drawn from the scan's best poses (_update)
         self._scored_with_credit = False  # the last update scored unknown space with unknown_occupancy
@@ -428,9 +428,10 @@ class MonteCarloLocalizer:
 
     def _converged(self) -> bool:
         """Whether the filter has converged (nav2 skips beams only then): at the last update, the heaviest
-        cluster held most of the weight, compactly. A spread cloud reads unknown space as nav2 does, so
-        that global localization is not drawn into the map's unexplored parts."""
-        return self._compact or (self.settings.recovery_unknown_neutral and self._moved_since_compact)
+        cluster held most of the weight, compactly; with ``recovery_unknown_neutral`` also a cloud that has
+        spread by the motion model alone since it was last LOCALIZED. A cloud spread otherwise (a global start,
+        an injection) reads unknown space as nav2 does, so that it is not drawn into the unexplored parts."""
+        return self._compact or (self.settings.recovery_unknown_neutral and self._moved_since_localized)
 
     def _skip_unexplained_beams(self, beams: _Beams) -> tuple[_Beams, _Beams | None]:
         """nav2's beam skipping: set aside the beams that few particles place near a mapped obstacle.
@@ -568,7 +569,6 @@ class MonteCarloLocalizer:
         std_yaw = math.sqrt(max(float(covariance[2, 2]), 0.0))
         tight = best_weight >= 0.5 and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
         self._compact = tight
-        self._moved_since_compact = tight or self._moved_since_compact
         compact = tight and effective >= s.localized_min_effective_particles
         # The fit holds on average and for this scan (a kidnapping drops it at once; w_fast follows slowly).
         scan_slow, scan_fast = self._scan_fit_slow.value, self._scan_fit_fast.value
@@ -588,6 +588,7 @@ class MonteCarloLocalizer:
             status = LocalizerStatus.INITIALIZING
         # nav2 skips beams once every particle is within 0.5 m; here: once the other clusters are no rival
         self._trusted = status is LocalizerStatus.LOCALIZED and best_weight >= 1.0 - 1.0 / s.rival_odds
+        self._moved_since_localized = self._moved_since_localized or self._trusted
 
         reported = _heaviest_first(weights, s.max_reported_particles)
         candidates, candidate_weights = self.particles[reported], weights[reported]
@@ -673,7 +674,7 @@ class MonteCarloLocalizer:
         self.particles = self._draw_around(winner.samples, np.ones(len(winner.samples)), count_now,
                                            0.25 * s.initial_std_xy, 0.25 * s.initial_std_yaw)
         self.log_weights = np.zeros(count_now)
-        self._moved_since_compact = False
+        self._moved_since_localized = False
         return True
 
     def _injection_bar(self, all_beams: NDArray[np.float64], all_count: int, partial: PartialMapScores | None,
@@ -767,7 +768,7 @@ class MonteCarloLocalizer:
             injected = len(recovered)
             particles = np.vstack([particles, recovered])
             self.counters.injected_particles += injected
-            self._moved_since_compact = False
+            self._moved_since_localized = self._moved_since_localized and injected == 0
         self.particles = particles
         self.log_weights = np.zeros(len(particles))
         return count, injected, bins

@@ -74,7 +74,7 @@ class MclSettings(Settings):
     )
     max_beams: int = setting(60, "valid beams used per scan, evenly spaced (nav2 60)", low=1, high=100_000)
     unknown_occupancy: float = setting(
-        0.5, "once converged, an end point in open unknown space (or off the map) scores at least this share "
+        0.8, "once converged, an end point in open unknown space (or off the map) scores at least this share "
         "of a mapped hit, as if unknown cells held an obstacle with this probability; 0: by its distance to the "
         "nearest mapped obstacle, as nav2 (ours)", low=0.0, high=1.0,
     )
