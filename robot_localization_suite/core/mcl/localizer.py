@@ -520,7 +520,8 @@ class MonteCarloLocalizer:
                       or effective < s.resample_effective_fraction * len(weights))
         if self._updates_since_resample >= s.resample_interval and (degenerate or self._injection_fraction() > 0.0):
             self._updates_since_resample = 0
-            bar = self._injection_bar(all_beams, len(beams.angles), partial, beam_count, impossible)
+            bar = self._injection_bar(all_beams, len(beams.angles), partial, beam_count, impossible) \
+                if self._injection_fraction() > 0.0 else None  # only an injection uses it
             next_count, injected, bins = self._resample(weights, beams, bar)
             estimate = replace(estimate, details={**estimate.details, "particles_next": next_count,
                                                   "injected": injected, "kld_bins": bins})
@@ -538,7 +539,7 @@ class MonteCarloLocalizer:
         the cloud with places whose mapped walls happen to explain it (docs/mcl.md, "Partial maps").
         """
         judged_count = (beam_count - partial.unjudged_count).astype(np.float64)
-        judged_sum = partial.total - partial.unjudged_sum
+        judged_sum = partial.judged_sum
         judged_count[impossible] = beam_count
         judged_sum[impossible] = beam_count * floor
         mass = weights * judged_count
@@ -691,7 +692,7 @@ class MonteCarloLocalizer:
         if not (s.recovery_requires_better and s.recovery_sampling == "measurement"):
             return None
         if partial is not None and self.w_slow > 0.0:
-            neutral = partial.total - partial.unjudged_sum + partial.unjudged_count * math.log(self.w_slow)
+            neutral = partial.judged_sum + partial.unjudged_count * math.log(self.w_slow)
             neutral[impossible] = -np.inf
             best = int(np.argmax(neutral))
             if self._trusted or partial.unjudged_count[best] > 0:

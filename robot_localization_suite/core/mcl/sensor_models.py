@@ -201,6 +201,11 @@ class PartialMapScores:
     unjudged_sum: NDArray[np.float64]
     unjudged_count: NDArray[np.int64]
 
+    @property
+    def judged_sum(self) -> NDArray[np.float64]:
+        """Per pose, the summed log-likelihood of the beams the map judges."""
+        return self.total - self.unjudged_sum
+
 
 class LikelihoodFieldModel:
     """Likelihood-field laser model over one map (see the module docstring and docs/mcl.md).

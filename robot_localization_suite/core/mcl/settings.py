@@ -111,8 +111,9 @@ class MclSettings(Settings):
     recovery_unknown_neutral: bool = setting(
         True, "once converged, beams the map cannot judge (end points credited as open unknown space) are neutral "
         "to the injection: the fit that drives it leaves them out and moves its averages by the share of beams it "
-        "judges, and with recovery_requires_better they count at the slow average fit, whatever the status; "
-        "false: they count as scored, as before (ours)")
+        "judges, and with recovery_requires_better they count at the slow average fit, whatever the status; the "
+        "credit is also kept while the cloud spreads by the motion model alone after LOCALIZED; false: they count "
+        "as scored and only a compact cloud is credited, as before (ours)")
     recovery_min_injection: float = setting(
         0.05, "random-particle fractions below this are not injected (ours)", low=0.0, high=1.0
     )
