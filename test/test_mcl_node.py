@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -320,5 +321,56 @@ def test_the_candidates_and_the_cloud_are_built_only_for_a_subscriber(monkeypatc
         assert built, "a subscriber gets the particle cloud"
     finally:
         listener.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never_starves_them() -> None:
+    """Under load the odometry can arrive several scans late: every scan then waits for its own odometry
+    (none is updated with an earlier instant's), and none is lost for a newer scan that also waits. With
+    the odometry stopped, scans wait at most transform_tolerance and nothing is updated with odometry it
+    lacks; when it comes back, the scans still waiting are updated."""
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import MAX_WAITING_INPUTS, LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=90, seed=2)
+    lag = 3  # scans (0.3 s at 10 Hz), within the default transform_tolerance of 1 s
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=2000", "-p", "min_particles:=500"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    node.trigger_configure()
+    node.trigger_activate()
+    handled: list[tuple[float, Any]] = []  # (scan stamp, its output: None where the filter did not move enough)
+    node.publish = lambda output, stamp=None: handled.append((stamp, output))  # type: ignore[method-assign]
+    try:
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
+        node.adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2] * 3)))
+        odometry = [conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom")
+                    for k in range(len(run.stamps))]
+        node._on_odom(odometry[0])
+        for k in range(1, 60):
+            node._on_scan(_scan_msg(run.scans[k]))
+            if k >= lag:
+                node._on_odom(odometry[k - lag])
+        np.testing.assert_allclose([stamp for stamp, _ in handled], run.stamps[1:60 - lag])  # each once, in order
+        last = [output for _, output in handled if output is not None][-1].estimate
+        assert last.status is LocalizerStatus.LOCALIZED
+        assert np.hypot(*(last.pose[:2] - run.truth[60 - lag - 1, :2])) < 0.15
+        # odometry stops: scans wait at most transform_tolerance (1 s) behind the newest, none is updated
+        before = len(handled)
+        for k in range(60, 90):
+            node._on_scan(_scan_msg(run.scans[k]))
+        assert len(handled) == before
+        waiting = [stamp for stamp, *_ in node._waiting]
+        assert waiting[-1] == pytest.approx(run.stamps[89]) and waiting[-1] - waiting[0] <= 1.0 + 1e-9
+        assert len(waiting) <= MAX_WAITING_INPUTS
+        # it comes back: the scans that still wait are updated, each when its own odometry arrives
+        for k in range(60 - lag, 90):
+            node._on_odom(odometry[k])
+        assert [stamp for stamp, _ in handled[before:]] == waiting and not node._waiting
+        last = [output for _, output in handled if output is not None][-1].estimate
+        assert last.stamp > run.stamps[80]
+        assert np.hypot(*(last.pose[:2] - run.truth[89, :2])) < 0.3
+    finally:
         node.destroy_node()
         rclpy.try_shutdown()

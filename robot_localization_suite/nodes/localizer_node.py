@@ -53,6 +53,8 @@ _ODOM_QOS = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=Re
 _WATCH_PERIOD_S = 0.5
 # How long scans wait for the laser mount on /tf_static before the laser_x/y/yaw parameters are used [s].
 _MOUNT_WAIT_S = 5.0
+# inputs waiting for their odometry, at most (nav2_amcl's scan filter queues 10; a 40 Hz scanner in 1 s: 40)
+MAX_WAITING_INPUTS = 100
 
 
 def topics_text(plugin: LocalizerPlugin) -> str:
@@ -295,7 +297,7 @@ class LocalizerNode(LifecycleNode):
         self.adapter.log = self.throttled
         self._fresh_method = True
         self._mount_wait_since: float | None = None
-        self._waiting: tuple[float, Any, Callable[[Any], AdapterOutput | None]] | None = None
+        self._waiting: list[tuple[float, Any, Callable[[Any], AdapterOutput | None]]] = []
         if previous is not None:
             if previous.current_map is not None:
                 self.adapter.set_map(previous.current_map)
@@ -475,26 +477,40 @@ class LocalizerNode(LifecycleNode):
         """Update with ``msg`` once odometry reaches its stamp, as nav2_amcl's tf message filter waits for it.
 
         Scans are best effort and odometry reliable: a scan often arrives before the odometry of its
-        own instant. It waits (the newest one only) for that odometry, so that neither the update nor
-        ``map -> odom`` uses odometry of an earlier instant. Without any odometry it goes at once.
+        own instant, and under load the odometry can trail by several scans. Inputs wait in stamp order
+        for that odometry, so that neither the update nor ``map -> odom`` uses odometry of an earlier
+        instant; each odometry message then runs the newest input it reaches and drops the older ones.
+        An input waits at most ``transform_tolerance`` (in stamp time, behind the newest input; as
+        nav2_amcl's filter times out), and at most ``MAX_WAITING_INPUTS`` wait. Without any odometry
+        an input goes at once.
         """
         assert self.adapter is not None
         stamp = stamp_to_seconds(msg.header.stamp)
-        if self.adapter.last_odometry_stamp < stamp and self.adapter.last_odometry_stamp > -math.inf:
-            if self._waiting is not None:
-                self.throttled("warn", "odometry_behind", "odometry does not reach the sensor's stamps: "
-                               "dropping inputs that wait for it (is odometry late or stopped?)")
-            self._waiting = (stamp, msg, update)
+        odometry_stamp = self.adapter.last_odometry_stamp
+        if odometry_stamp >= stamp or odometry_stamp == -math.inf:
+            self.publish(update(msg), stamp)
             return
-        self.publish(update(msg), stamp)
+        # An input stamped before waiting ones starts a new timeline (a bag looped): those are dropped.
+        waiting = [entry for entry in self._waiting if entry[0] < stamp] + [(stamp, msg, update)]
+        tolerance = self.node_settings.transform_tolerance
+        self._waiting = [entry for entry in waiting if stamp - entry[0] <= tolerance][-MAX_WAITING_INPUTS:]
+        if len(self._waiting) < len(waiting):
+            self.throttled("warn", "odometry_behind", f"odometry ({odometry_stamp:.3f} s) trails the sensor's "
+                           f"newest stamp by {stamp - odometry_stamp:.2f} s: dropping inputs that waited longer "
+                           f"than transform_tolerance ({tolerance:g} s) for it (is odometry late or stopped?)")
 
     def _odometry_arrived(self) -> None:
-        """Run the input that waited for this odometry."""
-        if self._waiting is not None and self.adapter is not None:
-            stamp, msg, update = self._waiting
-            if self.adapter.last_odometry_stamp >= stamp:
-                self._waiting = None
-                self.publish(update(msg), stamp)
+        """Run the newest input this odometry reaches (older ones are dropped, as a newer scan replaces them)."""
+        if self._waiting and self.adapter is not None:
+            self._run_waiting(self.adapter.last_odometry_stamp)
+
+    def _run_waiting(self, reached: float) -> None:
+        """Run the newest waiting input stamped at or before ``reached``; drop the older ones."""
+        due = [waiting for waiting in self._waiting if waiting[0] <= reached]
+        if due:
+            stamp, msg, update = max(due, key=lambda waiting: waiting[0])
+            self._waiting = [waiting for waiting in self._waiting if waiting[0] > reached]
+            self.publish(update(msg), stamp)
 
     def _on_odom(self, msg: Odometry) -> None:
         # Kept by the adapter during background work too: a pose given meanwhile is moved on by it afterwards.
