@@ -287,7 +287,7 @@ def test_autostart_configures_then_activates_the_localizers_and_a_failure_stops_
         output.wait_for(r"^\[rls_run\] mcl_baseline: activate done", 30)
         output.wait_for(r"^\[rls_run\] active: mcl_baseline", 10)
         process.send_signal(signal.SIGINT)
-        assert process.wait(timeout=30) == 0
+        assert process.wait(timeout=30) == 0, output.text()
     finally:
         if process.poll() is None:
             process.kill()
