@@ -24,6 +24,7 @@ from robot_localization_suite.core.ima.tracking import (
     ImaTrackerSettings,
     activity_update,
 )
+from robot_localization_suite.core.localizer import LocalizerStatus
 from robot_localization_suite.core.se2 import angle_difference
 from robot_localization_suite.core.sim.camera import CameraRenderer
 from robot_localization_suite.tools.build_topomap import snapshot_turns
@@ -444,6 +445,20 @@ def test_a_winning_virtual_destination_resets_the_odometry_only_in_code_3_1(
     assert virtual.details["kind"] == "virtual" and virtual.details["place"] == "WEST"
     assert virtual.details["odometry_reset"] == (reset == "winner")
     assert blind.details["place"] == expected
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1.2])
+def test_two_places_seen_alike_are_ambiguous_until_one_is_told_apart(true_panoramas: list[np.ndarray],
+                                                                       ratio: float) -> None:
+    # Vision matches WEST and EAST alike at the start: either may be the place, so the state is AMBIGUOUS with
+    # both among the candidates (with ambiguity_ratio 1.0, the thesis' winner alone: LOCALIZED at one of them).
+    # 0.6 m on, only WEST matches: LOCALIZED there.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(ambiguity_ratio=ratio))
+    tie, told = _drive_east(tracker, [(0.0, _seen({_WEST: (0.8, 0), _EAST: (0.8, 0)})), (0.6, _seen({_WEST: (0.9, 0)}))])
+    places = {tuple(np.round(xy, 3)) for xy in tie.candidates[:, :2]}
+    assert places == {PLACES["WEST"], PLACES["EAST"]} and tie.details["rival_activity"] == pytest.approx(0.5, abs=0.01)
+    assert tie.status is (LocalizerStatus.LOCALIZED if ratio == 1.0 else LocalizerStatus.AMBIGUOUS)
+    assert told.details["place"] == "WEST" and told.status is LocalizerStatus.LOCALIZED
 
 
 @pytest.mark.parametrize(

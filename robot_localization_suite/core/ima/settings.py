@@ -73,6 +73,9 @@ class ImaTrackerSettings(Settings):
                                    low=0.0, low_open=True, high=math.pi, high_open=True)
     heading_sigma: float = setting(math.radians(10.0), "heading standard deviation reported after a correction "
                                    "(thesis 5.1.4: 10 deg)", unit="rad", low=0.0, low_open=True, high=math.pi)
+    ambiguity_ratio: float = setting(1.2, "LOCALIZED only when the winner's activity is at least this many times "
+                                     "that of the best hypothesis at another place; else AMBIGUOUS (ours)",
+                                     low=1.0, high=1000.0)
     odometry_reset: str = setting("zoom", "where the odometry guess d0 is measured from: every winner (Code 3.1), "
                                   "a new place, or also a match without zoom (ours)", choices=ODOMETRY_RESETS)
 

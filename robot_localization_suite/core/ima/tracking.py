@@ -280,11 +280,14 @@ class ImaTopoLocalizer:
         order = np.argsort(-activity, kind="stable")
         candidates = np.column_stack([destination_xy, np.where(np.isnan(destination_heading), heading, destination_heading)])
         kind = "virtual" if destination_virtual[best] else "destination"
+        elsewhere = np.asarray(nodes) != winner_node
+        rival = float(activity[elsewhere].max()) if elsewhere.any() else 0.0
+        named = not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
         return self._estimate(
             stamp,
             winner_node,
             heading,
-            LocalizerStatus.AMBIGUOUS if destination_virtual[best] else LocalizerStatus.LOCALIZED,
+            LocalizerStatus.LOCALIZED if named else LocalizerStatus.AMBIGUOUS,
             candidates[order],
             activity[order],
             place,
@@ -293,6 +296,7 @@ class ImaTopoLocalizer:
             match=float(destination_match[best]),
             activity=float(activity[best]),
             destinations=int(len(seen)),
+            rival_activity=rival,
             odometry_reset=reset,
         )
 
