@@ -335,6 +335,31 @@ def test_a_slow_proposal_source_never_delays_a_tracking_update(office: GridMap) 
     assert taken is not None and stamps[0] < taken.stamp
 
 
+def test_every_query_of_a_source_runs_in_its_one_worker_thread_which_close_ends(office: GridMap) -> None:
+    """A thread started per query made each update wait until it ran (Thread.start waits for that): the
+    queries of a source share one worker thread, in order, and close() ends it."""
+    run = drive(office, steps=60, seed=8)
+    threads: list[threading.Thread] = []
+
+    def answer(scan: Scan) -> Estimate:
+        threads.append(threading.current_thread())
+        return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
+
+    settings = replace(_settings(Path("unused")), wait_for_workers=True, ir_every_updates=1)  # a query an update
+    hybrid = HybridLocalizer(settings, sources=[ProposalSource("ir", answer, background=True)])
+    hybrid.set_map(office)
+    hybrid.set_initial_pose(run.truth[0], TIGHT)
+    for k in range(60):
+        hybrid.on_odometry(run.stamps[k], run.odometry[k])
+        hybrid.on_scan(run.scans[k])
+    assert len(threads) >= 5 and len(set(threads)) == 1
+    (worker,) = set(threads)
+    assert worker is not threading.main_thread() and worker.daemon and worker.name == "rls-hybrid-ir"
+    hybrid.close()
+    worker.join(10.0)  # not a timing: the bound only ends a broken run
+    assert not worker.is_alive()
+
+
 def test_idle_time_lets_a_worker_answer_before_the_next_update_and_no_longer_than_given(office: GridMap) -> None:
     """``idle(seconds)`` (a replay's log time between inputs): a worker query still running after an update may end
     meanwhile and counts at the next update; one that needs longer is left running."""

@@ -2,7 +2,7 @@
 
 Under its bounded-error assumptions (every reading within ``range_error`` of the map but at most
 ``max_outliers`` of them, odometry within its bounds) interval analysis keeps the true pose inside
-its boxes. The monitor runs :class:`~..ial.localizer.IntervalLocalizer` in a daemon thread of its
+its boxes. The monitor runs :class:`~..ial.localizer.IntervalLocalizer` in a worker thread of its
 own (one scan at a time, the latest; the odometry in between is fed to it in order, so that its
 prediction stays sound) and judges an estimate against the last boxes: outside every box (with
 a margin for the estimate's own error), or boxes at several places (unless IAL stopped bisecting
@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 import threading
+from concurrent import futures
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
@@ -26,6 +28,7 @@ from ..ial.localizer import IntervalLocalizer
 from ..ial.settings import IALSettings
 from ..scan import Scan
 from ..se2 import angle_difference
+from .proposals import Worker
 
 __all__ = ["IntegrityMonitor"]
 
@@ -44,7 +47,8 @@ class IntegrityMonitor:
         self.margin_xy, self.margin_yaw, self.spread = margin_xy, margin_yaw, spread
         self._lock = threading.Lock()
         self._odometry: list[tuple[float, NDArray[np.float64]]] = []
-        self._thread: threading.Thread | None = None
+        self._worker = Worker("rls-hybrid-ial")
+        self._update_done: Future[None] | None = None
         self._generation = 0
         self.boxes: NDArray[np.float64] | None = None  # (K, 3, 2) of the last IAL update
         self.limited = False  # the last update stopped bisecting at IAL's limits: boxes coarse, spread unknown
@@ -81,17 +85,19 @@ class IntegrityMonitor:
 
     def submit(self, scan: Scan) -> None:
         """IAL's update with ``scan`` in the worker, unless it is busy (that scan is then skipped)."""
-        if self.off_reason.startswith("the map") or (self._thread is not None and self._thread.is_alive()):
+        if self.off_reason.startswith("the map") or (self._update_done is not None and not self._update_done.done()):
             return
         generation = self._generation
-        self._thread = threading.Thread(target=self._update, args=(scan, generation), name="rls-hybrid-ial",
-                                        daemon=True)
-        self._thread.start()
+        self._update_done = self._worker.submit(lambda: self._update(scan, generation))
 
     def wait(self, timeout: float | None = None) -> None:
         """Until the worker's update has ended, or ``timeout`` seconds have passed."""
-        if self._thread is not None:
-            self._thread.join(timeout)
+        if self._update_done is not None:
+            futures.wait([self._update_done], timeout)
+
+    def close(self) -> None:
+        """End the worker (an update running ends first; its boxes are still taken)."""
+        self._worker.close()
 
     def _update(self, scan: Scan, generation: int) -> None:
         with self._lock:

@@ -49,7 +49,7 @@ from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
 from .integrity import IntegrityMonitor
-from .proposals import Proposal, ProposalRunner, ProposalSource, in_thread, power_of_ten
+from .proposals import Proposal, ProposalRunner, ProposalSource, Worker, power_of_ten
 from .settings import HybridSettings
 
 if TYPE_CHECKING:  # the camera's modules load OpenCV: only a hybrid with a camera imports them
@@ -97,6 +97,7 @@ class HybridLocalizer:
             self.camera = CameraCue(topomap, s.ima, weight=s.camera_weight, place_radius=s.camera_place_radius,
                                     heading_tolerance=s.camera_heading_tolerance, window_s=s.camera_window)
         self._images: deque[Future[SeenImage]] = deque()  # images being matched, oldest first
+        self._camera_worker = Worker("rls-hybrid-camera")
         self._image_errors = 0
         self._images_used = 0  # images matched and used (for /diagnostics)
         self._images_dropped = 0  # images that came while one was being matched
@@ -171,8 +172,11 @@ class HybridLocalizer:
             self.monitor.wait(max(0.0, deadline - time.monotonic()))
 
     def close(self) -> None:
-        """Stop the proposal workers."""
+        """Stop the proposal, camera and integrity workers."""
         self.runner.close()
+        self._camera_worker.close()
+        if self.monitor is not None:
+            self.monitor.close()
 
     @property
     def wants_images(self) -> bool:
@@ -200,7 +204,7 @@ class HybridLocalizer:
             self._images_dropped += 1  # one match at a time: a camera faster than the matching is not queued
             return None
         camera = self.camera
-        self._images.append(in_thread("rls-hybrid-camera", lambda: camera.match(stamp, grey)))
+        self._images.append(self._camera_worker.submit(lambda: camera.match(stamp, grey)))
         return None
 
     def on_scan(self, scan: Scan) -> Estimate | None:
@@ -374,9 +378,7 @@ class HybridLocalizer:
             advantage = advantage + (camera[1:] - camera[0])
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
-        weights = self.mcl.weights
-        outside = np.array([weights[self._near(self.mcl.particles, pose)].sum() < s.support_weight for pose in back],
-                           dtype=bool)
+        outside = self._support(back) < s.support_weight
         if s.switch_min_explained > 0.0 and outside.any() and self.grid_map is not None:
             explained = map_coverage(self.grid_map, pool[outside], scan.angles,
                                      np.broadcast_to(scan.ranges, (int(outside.sum()), len(scan.ranges))),
@@ -415,10 +417,13 @@ class HybridLocalizer:
             total += self.camera.log_likelihood(moved, seen)
         return total
 
-    def _near(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
-        s = self.settings
-        close = np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) <= s.support_distance
-        return np.asarray(close & (np.abs(angle_difference(poses[:, 2], pose[2])) <= s.support_angle), dtype=bool)
+    def _support(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``(K,)`` the filter's weight within ``support_distance`` and ``support_angle`` of each of ``poses``."""
+        s, particles = self.settings, self.mcl.particles
+        close = np.hypot(particles[None, :, 0] - poses[:, None, 0],
+                         particles[None, :, 1] - poses[:, None, 1]) <= s.support_distance
+        turned = np.abs(angle_difference(particles[None, :, 2], poses[:, None, 2])) <= s.support_angle
+        return np.asarray((close & turned) @ self.mcl.weights, dtype=np.float64)
 
     def _elsewhere(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
         s = self.settings

@@ -143,6 +143,7 @@ class MonteCarloLocalizer:
                                    self.settings.rival_separation)
         self._reset_filter_state()
         self.last_estimate: Estimate | None = None
+        self._selected: tuple[Scan, _Beams | None] | None = None  # the last scan's beams (a hybrid asks 3 times)
         # The node's set_initial_pose / initial_pose.* (registry.NodeSettings) arrive through set_initial_pose.
         self._pending: _Init | None = _Init()
         if grid_map is not None:
@@ -366,6 +367,13 @@ class MonteCarloLocalizer:
 
     def _select_beams(self, scan: Scan) -> _Beams | None:
         """Valid beams of ``scan``, ``max_beams`` of them evenly spaced; None if there is none."""
+        if self._selected is not None and self._selected[0] is scan:
+            return self._selected[1]
+        beams = self._usable_beams(scan)
+        self._selected = (scan, beams)
+        return beams
+
+    def _usable_beams(self, scan: Scan) -> _Beams | None:
         s = self.settings
         max_range = scan.range_max if s.laser_max_range <= 0.0 else min(scan.range_max, s.laser_max_range)
         min_range = scan.range_min if s.laser_min_range <= 0.0 else max(scan.range_min, s.laser_min_range)
