@@ -474,5 +474,26 @@ class HybridLocalizer:
         log_weights = np.concatenate([[own], others[places]])
         weights = np.exp(log_weights - log_weights.max())
         details["rivals"] = len(places)
-        return replace(estimate, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
+        pose, covariance = estimate.pose, estimate.covariance
+        if (self.mcl.fit_dropped and others[places[0]] - own >= s.better_log_odds
+                and self._explained(scan, pool[places[0]])):
+            # The best guess is the rival: the scan contradicts the filter (its fit dropped as at a kidnapping) and the
+            # rival explains it as clearly better as a recovery needs, where the map vouches for it. The filter follows
+            # once the advantage has held for better_updates updates. Listed first, with a candidate's spread.
+            order = [1, 0, *range(2, len(poses))]
+            poses, weights = poses[order], weights[order]
+            pose = poses[0].copy()
+            covariance = np.diag([s.proposal_std_xy**2, s.proposal_std_xy**2, s.proposal_std_yaw**2])
+            details["pose_from"] = "candidate"
+        return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
+
+    def _explained(self, scan: Scan, pose: NDArray[np.float64]) -> bool:
+        """Whether the map vouches for ``pose``: ``switch_min_explained`` of the scan's end points lie near a mapped
+        obstacle there (no hit: cannot be judged, True)."""
+        s = self.settings
+        if s.switch_min_explained <= 0.0 or self.grid_map is None:
+            return True
+        explained = map_coverage(self.grid_map, pose[None, :], scan.angles, scan.ranges[None, :],
+                                 range_max=scan.range_max, range_min=scan.range_min)
+        return not bool(explained[0] < s.switch_min_explained)

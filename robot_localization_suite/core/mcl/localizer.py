@@ -255,6 +255,13 @@ class MonteCarloLocalizer:
             beams.max_range)
         return np.asarray(np.exp(log_likelihood / len(beams.angles)), dtype=np.float64)
 
+    @property
+    def fit_dropped(self) -> bool:
+        """Whether the last update's fit over every beam fell below ``lost_fit_ratio`` of its slow average: the
+        scan contradicts the cloud (a kidnapping drops it at once; a partial map lowers it slowly)."""
+        slow = self._scan_fit_slow.value
+        return slow > 0.0 and self._scan_fit < self.settings.lost_fit_ratio * slow
+
     def seed_from_poses(self, poses: NDArray[np.float64], weights: NDArray[np.float64], count: int,
                         std_xy: float, std_yaw: float) -> None:
         """Restart with ``count`` particles drawn around weighted poses (ranked global-fix candidates)
