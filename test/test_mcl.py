@@ -103,6 +103,25 @@ def test_a_kidnapping_is_detected_and_recovered(office: GridMap) -> None:
     assert np.all(errors_after[recovered[0] + 10 :, 0] < 0.3)  # and stays recovered
 
 
+def test_the_fit_drops_at_a_kidnapping_and_not_while_tracking(office: GridMap) -> None:
+    """``fit_dropped`` (the hybrid's sign that the scan contradicts the cloud): false at every update of a steady
+    track, true at the first update after the robot is carried elsewhere."""
+    kidnap = 120
+    kidnapped = drive(office, steps=kidnap + 10, seed=4, kidnap_step=kidnap, kidnap_index=9)
+    localizer = MonteCarloLocalizer(MclSettings(random_seed=4), office)
+    localizer.set_initial_pose(kidnapped.truth[0], np.diag([0.01, 0.01, 0.003]))
+    dropped = []
+    for k in range(len(kidnapped.stamps)):
+        localizer.on_odometry(kidnapped.stamps[k], kidnapped.odometry[k])
+        if k >= kidnap:
+            localizer.request_nomotion_update()  # the kidnapping's scan is weighed at once
+        if localizer.on_scan(kidnapped.scans[k]) is not None:
+            dropped.append((k, localizer.fit_dropped))
+    before = [flag for k, flag in dropped if k < kidnap]
+    assert len(before) >= 10 and not any(before)
+    assert next(flag for k, flag in dropped if k >= kidnap)
+
+
 def test_reinitialize_spreads_particles_over_free_space(office: GridMap, run: Drive) -> None:
     localizer = MonteCarloLocalizer(MclSettings(max_particles=8000), office)
     localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))
