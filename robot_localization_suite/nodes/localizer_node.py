@@ -500,16 +500,14 @@ class LocalizerNode(LifecycleNode):
                            f"than transform_tolerance ({tolerance:g} s) for it (is odometry late or stopped?)")
 
     def _odometry_arrived(self) -> None:
-        """Run the newest input this odometry reaches (older ones are dropped, as a newer scan replaces them)."""
-        if self._waiting and self.adapter is not None:
-            self._run_waiting(self.adapter.last_odometry_stamp)
-
-    def _run_waiting(self, reached: float) -> None:
-        """Run the newest waiting input stamped at or before ``reached``; drop the older ones."""
-        due = [waiting for waiting in self._waiting if waiting[0] <= reached]
+        """Run the newest input this odometry reaches; drop the older ones (as a newer scan replaces them)."""
+        if not self._waiting or self.adapter is None:
+            return
+        reached = self.adapter.last_odometry_stamp
+        due = [entry for entry in self._waiting if entry[0] <= reached]  # the list is in stamp order
         if due:
-            stamp, msg, update = max(due, key=lambda waiting: waiting[0])
-            self._waiting = [waiting for waiting in self._waiting if waiting[0] > reached]
+            self._waiting = self._waiting[len(due):]
+            stamp, msg, update = due[-1]
             self.publish(update(msg), stamp)
 
     def _on_odom(self, msg: Odometry) -> None:

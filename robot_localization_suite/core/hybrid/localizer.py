@@ -379,11 +379,8 @@ class HybridLocalizer:
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
         outside = self._support(back) < s.support_weight
-        if s.switch_min_explained > 0.0 and outside.any() and self.grid_map is not None:
-            explained = map_coverage(self.grid_map, pool[outside], scan.angles,
-                                     np.broadcast_to(scan.ranges, (int(outside.sum()), len(scan.ranges))),
-                                     range_max=scan.range_max, range_min=scan.range_min)
-            outside[outside] = ~(explained < s.switch_min_explained)  # NaN (no hit) cannot be judged: kept
+        if outside.any():
+            outside[outside] = self._explained(scan, pool[outside])
         if not outside.any() or not np.isfinite(advantage[outside]).any():
             self._evidence, self._better_count = 0.0, 0
             return {"switch_evidence": 0.0}
@@ -476,7 +473,7 @@ class HybridLocalizer:
         details["rivals"] = len(places)
         pose, covariance = estimate.pose, estimate.covariance
         if (self.mcl.fit_dropped and others[places[0]] - own >= s.better_log_odds
-                and self._explained(scan, pool[places[0]])):
+                and self._explained(scan, pool[places[:1]])[0]):
             # The best guess is the rival: the scan contradicts the filter (its fit dropped as at a kidnapping) and the
             # rival explains it as clearly better as a recovery needs, where the map vouches for it. The filter follows
             # once the advantage has held for better_updates updates. Listed first, with a candidate's spread.
@@ -488,12 +485,13 @@ class HybridLocalizer:
         return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
 
-    def _explained(self, scan: Scan, pose: NDArray[np.float64]) -> bool:
-        """Whether the map vouches for ``pose``: ``switch_min_explained`` of the scan's end points lie near a mapped
-        obstacle there (no hit: cannot be judged, True)."""
+    def _explained(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
+        a mapped obstacle there (no hit cannot be judged: True)."""
         s = self.settings
         if s.switch_min_explained <= 0.0 or self.grid_map is None:
-            return True
-        explained = map_coverage(self.grid_map, pose[None, :], scan.angles, scan.ranges[None, :],
+            return np.ones(len(poses), dtype=bool)
+        explained = map_coverage(self.grid_map, poses, scan.angles,
+                                 np.broadcast_to(scan.ranges, (len(poses), len(scan.ranges))),
                                  range_max=scan.range_max, range_min=scan.range_min)
-        return not bool(explained[0] < s.switch_min_explained)
+        return np.asarray(~(explained < s.switch_min_explained), dtype=bool)
