@@ -28,6 +28,8 @@ from robot_localization_suite.core.mcl.sensor_models import BeamModel, Likelihoo
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
 from robot_localization_suite.core.se2 import angle_difference
+from robot_localization_suite.core.sim.scenario_yaml import load_scenario
+from robot_localization_suite.core.sim.simulator import Simulator
 
 
 @pytest.fixture(scope="module")
@@ -406,7 +408,8 @@ def test_tracking_through_a_room_the_map_has_not_explored(office: GridMap, run: 
     # The drive enters the north-east room, unknown on the map. nav2's likelihood field scores its walls by
     # the distance to the nearest *mapped* obstacle and drags the cloud away; reading unknown space as
     # unknown (unknown_occupancy) and skipping the beams the map cannot explain keeps the track.
-    nav2 = {"unknown_occupancy": 0.0, "do_beamskip": False, "recovery_requires_better": False}
+    nav2 = {"unknown_occupancy": 0.0, "unmapped_obstacle_weight": 0.0, "do_beamskip": False,
+            "recovery_requires_better": False}
     localizer = MonteCarloLocalizer(MclSettings(**(nav2 if model == "nav2" else {})), _unexplored_room_map(office))
     localizer.set_initial_pose(run.truth[0], np.diag([0.1**2, 0.1**2, math.radians(5.0) ** 2]))
     outputs = _replay(localizer, run)
@@ -469,6 +472,32 @@ def test_with_a_partial_map_unknown_space_scores_as_a_half_likely_obstacle() -> 
     free = np.array([[1.5, 1.0, 0.0]])
     assert model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0, partial_map=True)[0] == \
         pytest.approx(model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0)[0])
+
+
+def test_an_unmapped_obstacle_near_the_laser_explains_a_short_reading_and_not_a_far_one() -> None:
+    plain = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0)
+    model = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0,
+                                 unmapped_weight=0.5, unmapped_decay=1.0)
+    pose = np.array([[1.0, 1.0, 0.0]])
+    # 0.4 m ahead, 1.6 m short of the wall (a person): nav2 scores it as a random reading, here as an
+    # unmapped obstacle at 0.4 m, the better of the two
+    near = model.log_likelihood(pose, np.array([0.0]), np.array([0.4]), max_range=10.0)
+    assert plain.log_likelihood(pose, np.array([0.0]), np.array([0.4]), max_range=10.0)[0] < math.log(0.06)
+    assert near[0] == pytest.approx(math.log(0.5 * math.exp(-4.0 / 0.08) + 0.05 + 0.5 * math.exp(-0.4)), abs=1e-6)
+    # the same end point reached 1.5 m from the laser earns far less, and a reading 4 m out almost nothing
+    farther = model.log_likelihood(np.array([[-0.1, 1.0, 0.0]]), np.array([0.0]), np.array([1.5]), max_range=10.0)
+    assert farther[0] < near[0] - 0.8
+    far = model.log_likelihood(np.array([[1.0, 1.0, math.pi / 2]]), np.array([0.0]), np.array([4.0]), max_range=10.0)
+    assert model.floor_log_likelihood(10.0) < far[0] < model.floor_log_likelihood(10.0) + 0.2
+    # a wall hit keeps its score; the partial-map scores take the same floor
+    hit = model.log_likelihood(pose, np.array([0.0]), np.array([2.05]), max_range=10.0)
+    assert hit[0] == pytest.approx(math.log(0.5 + 0.05), abs=1e-6)
+    data = _wall_map().data.copy()
+    data[:, :5] = -1
+    partial = LikelihoodFieldModel(GridMap(data, 0.1, (0.0, 0.0)), z_hit=0.5, z_rand=0.5, sigma_hit=0.2,
+                                   max_distance=2.0, unknown_occupancy=0.5, unmapped_weight=0.5, unmapped_decay=1.0)
+    assert partial.log_likelihood(pose, np.array([0.0]), np.array([0.4]), max_range=10.0, partial_map=True)[0] == \
+        pytest.approx(near[0])
 
 
 def test_beam_agreement_is_the_weight_of_the_poses_whose_end_point_meets_an_obstacle() -> None:
@@ -712,3 +741,23 @@ def test_a_rival_is_ruled_out_or_wins_by_its_summed_bayes_factors() -> None:
     assert winner is not None and np.hypot(*(winner.best[:2] - far[:2])) < 0.1
     tracker.weigh(constant(0.0), cloud_log_predictive=0.0, temper=1.0, best_pose=winner.best, rng=rng)
     assert len(tracker) == 0  # the cloud has reached it: one hypothesis, no rival
+
+
+def test_a_person_beside_the_robot_at_a_global_start_does_not_crown_a_look_alike(repo_root) -> None:
+    # bags/floor_kidnap's start (docs/mcl.md, "Unmapped obstacles"): a person 0.4 m to the right hides
+    # 8 of the 60 beams; scored as random readings they make a corridor 26 m away explain the first
+    # scans better than the truth, and the filter says LOCALIZED there at the third update.
+    scenario = load_scenario(repo_root / "config" / "scenarios" / "floor_kidnap.yaml")
+    errors = {}
+    for weight in (0.5, 0.0):
+        simulator = Simulator(scenario)
+        localizer = MonteCarloLocalizer(MclSettings(unmapped_obstacle_weight=weight), scenario.grid_map)
+        errors[weight] = []
+        for _ in range(30):
+            step = simulator.step()
+            localizer.on_odometry(step.time, step.odom_pose)
+            estimate = localizer.on_scan(simulator.to_scan(step))
+            if estimate is not None and estimate.status is LocalizerStatus.LOCALIZED:
+                errors[weight].append(pose_error(estimate.pose, step.true_pose)[0])
+    assert errors[0.5] and max(errors[0.5]) < 0.3
+    assert max(errors[0.0]) > 10.0  # what the unmapped-obstacle class fixes

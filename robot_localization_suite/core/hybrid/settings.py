@@ -23,8 +23,10 @@ __all__ = ["HybridSettings"]
 
 def _mcl_settings() -> MclSettings:
     """The filter as the hybrid runs it: the proposals, not Augmented MCL's random particles, recover it
-    (an injected fraction must reach 1, which it never does: the fit averages still judge the status)."""
-    return MclSettings(recovery_min_injection=1.0)
+    (an injected fraction must reach 1, which it never does: the fit averages still judge the status); nav2's
+    likelihood field without the unmapped-obstacle class, which cost the hybrid more than it gave (docs/hybrid.md,
+    "The unmapped-obstacle class")."""
+    return MclSettings(recovery_min_injection=1.0, unmapped_obstacle_weight=0.0)
 
 
 @dataclass(frozen=True)

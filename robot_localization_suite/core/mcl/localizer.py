@@ -172,7 +172,8 @@ class MonteCarloLocalizer:
         else:
             self._sensor = LikelihoodFieldModel(
                 grid_map, z_hit=s.z_hit, z_rand=s.z_rand, sigma_hit=s.sigma_hit, max_distance=s.laser_likelihood_max_dist,
-                unknown_occupancy=s.unknown_occupancy,
+                unknown_occupancy=s.unknown_occupancy, unmapped_weight=s.unmapped_obstacle_weight,
+                unmapped_decay=s.unmapped_obstacle_decay,
             )
         self._free_mask = ~grid_map.occupied_mask
         # Load the compiled kernels now (map setup), not in the first update.

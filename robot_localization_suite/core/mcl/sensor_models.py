@@ -50,7 +50,7 @@ def _end_cell(x, y, c, s, beam_x, beam_y, origin_x, origin_y, inverse_resolution
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam_x, beam_y, off_map, out):
+def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam_x, beam_y, beam_floor, off_map, out):
     height, width = table.shape
     for p in range(poses.shape[0]):
         x = poses[p, 0]
@@ -62,10 +62,8 @@ def _field_sum_kernel(table, origin_x, origin_y, inverse_resolution, poses, beam
             ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
             ix = int(math.floor(ex))
             iy = int(math.floor(ey))
-            if ix >= 0 and iy >= 0 and ix < width and iy < height:
-                total += table[iy, ix]
-            else:
-                total += off_map
+            value = table[iy, ix] if ix >= 0 and iy >= 0 and ix < width and iy < height else off_map
+            total += max(value, beam_floor[b])
         out[p] = total
 
 
@@ -114,7 +112,8 @@ def _ray_is_clear(occupied, clearance, inverse_resolution, x0, y0, x1, y1):
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution,
-                        poses, beam_x, beam_y, off_map, closed_off_map, out, unjudged_sum, unjudged_count):
+                        poses, beam_x, beam_y, beam_floor, off_map, closed_off_map, out, unjudged_sum,
+                        unjudged_count):
     """As _field_sum_kernel with ``table`` crediting open unknown space (and off the map, ``off_map``), but an
     end point there counts only if the beam reaches it through no mapped obstacle (else ``closed_*``). The
     credited beams (the map cannot judge them) are also summed and counted on their own, per pose."""
@@ -135,14 +134,14 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
             iy = int(math.floor(ey))
             inside = ix >= 0 and iy >= 0 and ix < width and iy < height
             if inside and not open_unknown[iy, ix]:
-                total += table[iy, ix]
+                total += max(table[iy, ix], beam_floor[b])
             elif _ray_is_clear(occupied, clearance, inverse_resolution, gx, gy, ex, ey):
-                value = table[iy, ix] if inside else off_map
+                value = max(table[iy, ix] if inside else off_map, beam_floor[b])
                 total += value
                 credited += value
                 credited_count += 1
             else:  # through a wall: the unknown space behind it is no explanation
-                total += closed_table[iy, ix] if inside else closed_off_map
+                total += max(closed_table[iy, ix] if inside else closed_off_map, beam_floor[b])
         out[p] = total
         unjudged_sum[p] = credited
         unjudged_count[p] = credited_count
@@ -162,8 +161,9 @@ def field_log_likelihood(
     angles: ArrayLike,
     ranges: ArrayLike,
     off_map: float,
+    beam_floor: ArrayLike | None = None,
 ) -> NDArray[np.float64]:
-    """Sum over beams of ``table`` at the beam endpoints, for each pose.
+    """Sum over beams of ``table`` at the beam endpoints (each at least its ``beam_floor``), for each pose.
 
     Args:
         table: ``(H, W)`` per-cell value (e.g. log-likelihood), row 0 at the origin.
@@ -171,12 +171,17 @@ def field_log_likelihood(
         poses: ``(P, 3)`` sensor poses [m, m, rad].
         angles, ranges: ``(B,)`` beam angles [rad] and finite ranges [m] in the sensor frame.
         off_map: value of an endpoint outside the table.
+        beam_floor: ``(B,)`` lowest value of each beam; None: no floor.
 
     Returns:
         ``(P,)`` sums.
     """
     poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
     beam_x, beam_y = _beam_offsets(angles, ranges)
+    floors = np.full(len(beam_x), -np.finfo(np.float64).max) if beam_floor is None \
+        else np.ascontiguousarray(np.asarray(beam_floor, dtype=np.float64).reshape(-1))
+    if floors.shape != beam_x.shape:
+        raise ValueError(f"beam_floor must have one value per beam ({len(beam_x)}), got shape {floors.shape}")
     out = np.empty(poses_arr.shape[0], dtype=np.float64)
     _field_sum_kernel(
         np.ascontiguousarray(table, dtype=np.float32),
@@ -186,6 +191,7 @@ def field_log_likelihood(
         poses_arr,
         beam_x,
         beam_y,
+        floors,
         float(off_map),
         out,
     )
@@ -221,6 +227,10 @@ class LikelihoodFieldModel:
             (``GridMap.open_unknown``) that the beam reaches through no mapped obstacle scores at least
             ``unknown_occupancy`` of a mapped hit, one value for all of it (docs/mcl.md, "Partial maps");
             otherwise it scores by its distance to the nearest mapped obstacle, as nav2 does.
+        unmapped_weight, unmapped_decay: an obstacle the map does not hold (a person, a box) in front of the
+            laser: a reading at range ``r`` scores at least ``log(z_rand / max_range + unmapped_weight *
+            unmapped_decay * exp(-unmapped_decay * r))``, the better of the two explanations (a max-mixture);
+            weight 0: nav2's model [1, 1/m] (docs/mcl.md, "Unmapped obstacles").
     """
 
     def __init__(
@@ -232,8 +242,12 @@ class LikelihoodFieldModel:
         sigma_hit: float,
         max_distance: float,
         unknown_occupancy: float = 0.0,
+        unmapped_weight: float = 0.0,
+        unmapped_decay: float = 1.0,
     ) -> None:
         _check_weight("z_hit", z_hit)
+        _check_weight("unmapped_weight", unmapped_weight)
+        _check_positive("unmapped_decay", unmapped_decay)
         _check_weight("z_rand", z_rand)
         if z_hit + z_rand <= 0.0:
             raise ValueError(f"z_hit + z_rand must be positive, got {z_hit!r} + {z_rand!r}")
@@ -247,6 +261,8 @@ class LikelihoodFieldModel:
         self.sigma_hit = float(sigma_hit)
         self.max_distance = float(max_distance)
         self.unknown_occupancy = float(unknown_occupancy)
+        self.unmapped_weight = float(unmapped_weight)
+        self.unmapped_decay = float(unmapped_decay)
         distance = np.minimum(grid_map.distance_field(), np.float32(self.max_distance)).astype(np.float64)
         hit = np.exp(-(distance**2) / (2.0 * self.sigma_hit**2))
         far = math.exp(-(self.max_distance**2) / (2.0 * self.sigma_hit**2))
@@ -267,6 +283,13 @@ class LikelihoodFieldModel:
     def floor_log_likelihood(self, max_range: float) -> float:
         """The lowest per-beam log-likelihood: a reading far from every obstacle."""
         return math.log(self._far_hit_term + self.z_rand / max_range)
+
+    def beam_floors(self, ranges: ArrayLike, max_range: float) -> NDArray[np.float64]:
+        """Per reading, its lowest log-likelihood: far from every mapped obstacle, explained at best by a random
+        reading or by an unmapped obstacle at its range (``unmapped_weight``)."""
+        ranges_arr = np.asarray(ranges, dtype=np.float64).reshape(-1)
+        unmapped = self.unmapped_weight * self.unmapped_decay * np.exp(-self.unmapped_decay * ranges_arr)
+        return np.log(self._far_hit_term + self.z_rand / max_range + unmapped)
 
     def table(self, max_range: float, *, partial_map: bool = False) -> tuple[NDArray[np.float32], float]:
         """Per-cell ``log p`` ``(H, W)`` and the off-map value for readings up to ``max_range`` [m]."""
@@ -297,9 +320,8 @@ class LikelihoodFieldModel:
         """
         if not (partial_map and self.unknown_occupancy > 0.0):
             table, off_map = self.table(max_range)
-            return field_log_likelihood(
-                table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges, off_map
-            )
+            return field_log_likelihood(table, self.grid_map.resolution, self.grid_map.origin, poses, angles, ranges,
+                                        off_map, self.beam_floors(ranges, max_range))
         return self.partial_log_likelihood(poses, angles, ranges, max_range=max_range).total
 
     def partial_log_likelihood(
@@ -323,7 +345,8 @@ class LikelihoodFieldModel:
         origin = self.grid_map.origin
         _partial_sum_kernel(table, closed_table, open_unknown, self._occupied,
                             np.ascontiguousarray(self.grid_map.distance_field()), float(origin[0]), float(origin[1]),
-                            1.0 / self.grid_map.resolution, poses_arr, beam_x, beam_y, float(off_map),
+                            1.0 / self.grid_map.resolution, poses_arr, beam_x, beam_y,
+                            self.beam_floors(ranges, max_range), float(off_map),
                             float(closed_off_map), out, unjudged_sum, unjudged_count)
         return PartialMapScores(out, unjudged_sum, unjudged_count)
 

@@ -78,6 +78,16 @@ class MclSettings(Settings):
         "of a mapped hit, as if unknown cells held an obstacle with this probability; 0: by its distance to the "
         "nearest mapped obstacle, as nav2 (ours)", low=0.0, high=1.0,
     )
+    unmapped_obstacle_weight: float = setting(
+        0.5, "likelihood field: an obstacle the map does not hold (a person, a box) explains a reading at range r "
+        "with weight * decay * exp(-decay * r), the beam model's short-reading class; a reading scores the "
+        "better of that and the map's explanation. 0.5 (z_hit): right at the laser it explains a reading as "
+        "well as a mapped wall; 0: nav2 (ours)", low=0.0, high=_BIG,
+    )
+    unmapped_obstacle_decay: float = setting(
+        1.0, "decay of the unmapped-obstacle explanation with range (1: it halves every 0.69 m; ours)",
+        unit="1/m", low=0.0, low_open=True, high=_BIG,
+    )
     do_beamskip: bool = setting(True, "once converged, skip the beams that few particles place near a mapped "
                                 "obstacle (nav2 false, and only with likelihood_field_prob)")
     beam_skip_distance: float = setting(0.5, "an end point this close to a mapped obstacle agrees with the map "
