@@ -325,11 +325,43 @@ def test_the_candidates_and_the_cloud_are_built_only_for_a_subscriber(monkeypatc
         rclpy.try_shutdown()
 
 
+def test_odometry_whose_lag_keeps_growing_still_updates_once_a_transform_tolerance() -> None:
+    """An executor that cannot keep up serves one odometry message a spin while the scans stay fresh: the
+    odometry's lag grows past transform_tolerance. The node then updates late, with the scans its odometry
+    reaches, instead of dropping each before its odometry comes (the demo's starvation under load)."""
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=120, seed=2)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=2000", "-p", "min_particles:=500"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    node.trigger_configure()
+    node.trigger_activate()
+    handled: list[float] = []
+    node.publish = lambda output, stamp=None: handled.append(stamp)  # type: ignore[method-assign]
+    try:
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
+        node.adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2] * 3)))
+        node._on_odom(conversions.odometry_to_msg(run.stamps[0], run.odometry[0], frame_id="odom"))
+        for k in range(1, 120):  # odometry at half the scan rate: 6 s behind at the end
+            node._on_scan(_scan_msg(run.scans[k]))
+            if k % 2 == 0:
+                node._on_odom(conversions.odometry_to_msg(run.stamps[k // 2], run.odometry[k // 2], frame_id="odom"))
+        reached = run.stamps[59]
+        assert handled and handled[-1] >= reached - 2.0  # within two tolerances of where the odometry is
+        assert np.all(np.diff(handled) > 0.0)  # in order, each once
+        assert len([stamp for stamp in handled if stamp > run.stamps[20]]) >= 3  # past the first second of lag
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never_starves_them() -> None:
     """Under load the odometry can arrive several scans late: every scan then waits for its own odometry
     (none is updated with an earlier instant's), and none is lost for a newer scan that also waits. With
-    the odometry stopped, scans wait at most transform_tolerance and nothing is updated with odometry it
-    lacks; when it comes back, the scans still waiting are updated."""
+    the odometry stopped, nothing is updated with odometry it lacks; when it comes back, the scans still
+    waiting are updated."""
     rclpy = pytest.importorskip("rclpy")
     from robot_localization_suite.nodes.localizer_node import MAX_WAITING_INPUTS, LocalizerNode
 
@@ -356,13 +388,17 @@ def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never
         last = [output for _, output in handled if output is not None][-1].estimate
         assert last.status is LocalizerStatus.LOCALIZED
         assert np.hypot(*(last.pose[:2] - run.truth[60 - lag - 1, :2])) < 0.15
-        # odometry stops: scans wait at most transform_tolerance (1 s) behind the newest, none is updated
+        # odometry stops: none is updated; the scans of the last transform_tolerance (1 s) all wait, older
+        # ones one a second
         before = len(handled)
         for k in range(60, 90):
             node._on_scan(_scan_msg(run.scans[k]))
         assert len(handled) == before
         waiting = [stamp for stamp, *_ in node._waiting]
-        assert waiting[-1] == pytest.approx(run.stamps[89]) and waiting[-1] - waiting[0] <= 1.0 + 1e-9
+        recent = [stamp for stamp in waiting if waiting[-1] - stamp <= 1.0 + 1e-9]
+        assert waiting[-1] == pytest.approx(run.stamps[89]) and len(recent) == 11
+        older = waiting[: len(waiting) - len(recent)]
+        assert older and np.all(np.diff(older) >= 1.0 - 1e-9) and recent[0] - older[-1] <= 1.1 + 1e-9
         assert len(waiting) <= MAX_WAITING_INPUTS
         # it comes back: the scans that still wait are updated, each when its own odometry arrives
         for k in range(60 - lag, 90):

@@ -480,9 +480,11 @@ class LocalizerNode(LifecycleNode):
         own instant, and under load the odometry can trail by several scans. Inputs wait in stamp order
         for that odometry, so that neither the update nor ``map -> odom`` uses odometry of an earlier
         instant; each odometry message then runs the newest input it reaches and drops the older ones.
-        An input waits at most ``transform_tolerance`` (in stamp time, behind the newest input; as
-        nav2_amcl's filter times out), and at most ``MAX_WAITING_INPUTS`` wait. Without any odometry
-        an input goes at once.
+        The inputs within ``transform_tolerance`` (stamp time) of the newest all wait, as nav2_amcl's filter
+        holds its scans; older ones are thinned to one a ``transform_tolerance``, so that odometry whose lag
+        keeps growing (an executor that cannot keep up serves one odometry message a spin) still reaches an
+        input within that of its stamp: late updates rather than none. At most ``MAX_WAITING_INPUTS`` wait.
+        Without any odometry an input goes at once.
         """
         assert self.adapter is not None
         stamp = stamp_to_seconds(msg.header.stamp)
@@ -493,11 +495,17 @@ class LocalizerNode(LifecycleNode):
         # An input stamped before waiting ones starts a new timeline (a bag looped): those are dropped.
         waiting = [entry for entry in self._waiting if entry[0] < stamp] + [(stamp, msg, update)]
         tolerance = self.node_settings.transform_tolerance
-        self._waiting = [entry for entry in waiting if stamp - entry[0] <= tolerance][-MAX_WAITING_INPUTS:]
+        recent = [entry for entry in waiting if stamp - entry[0] <= tolerance]
+        thinned: list[tuple[float, Any, Callable[[Any], AdapterOutput | None]]] = []
+        for entry in waiting[: len(waiting) - len(recent)]:  # oldest first: the kept ones stay kept
+            if not thinned or entry[0] - thinned[-1][0] >= tolerance:
+                thinned.append(entry)
+        self._waiting = (thinned + recent)[-MAX_WAITING_INPUTS:]
         if len(self._waiting) < len(waiting):
             self.throttled("warn", "odometry_behind", f"odometry ({odometry_stamp:.3f} s) trails the sensor's "
-                           f"newest stamp by {stamp - odometry_stamp:.2f} s: dropping inputs that waited longer "
-                           f"than transform_tolerance ({tolerance:g} s) for it (is odometry late or stopped?)")
+                           f"newest stamp by {stamp - odometry_stamp:.2f} s: inputs older than "
+                           f"transform_tolerance ({tolerance:g} s) keep one a {tolerance:g} s for it, the others "
+                           "are dropped (is odometry late or stopped?)")
 
     def _odometry_arrived(self) -> None:
         """Run the newest input this odometry reaches; drop the older ones (as a newer scan replaces them)."""
