@@ -483,7 +483,8 @@ class LocalizerNode(LifecycleNode):
         The inputs within ``transform_tolerance`` (stamp time) of the newest all wait, as nav2_amcl's filter
         holds its scans; older ones are thinned to one a ``transform_tolerance``, so that odometry whose lag
         keeps growing (an executor that cannot keep up serves one odometry message a spin) still reaches an
-        input within that of its stamp: late updates rather than none. At most ``MAX_WAITING_INPUTS`` wait.
+        input within that of its stamp: late updates rather than none (with 0, only the newest waits). At most
+        ``MAX_WAITING_INPUTS`` wait.
         Without any odometry an input goes at once.
         """
         assert self.adapter is not None
@@ -497,7 +498,7 @@ class LocalizerNode(LifecycleNode):
         tolerance = self.node_settings.transform_tolerance
         recent = [entry for entry in waiting if stamp - entry[0] <= tolerance]
         thinned: list[tuple[float, Any, Callable[[Any], AdapterOutput | None]]] = []
-        for entry in waiting[: len(waiting) - len(recent)]:  # oldest first: the kept ones stay kept
+        for entry in waiting[: len(waiting) - len(recent)] if tolerance > 0.0 else ():  # oldest first: kept stay kept
             if not thinned or entry[0] - thinned[-1][0] >= tolerance:
                 thinned.append(entry)
         self._waiting = (thinned + recent)[-MAX_WAITING_INPUTS:]
