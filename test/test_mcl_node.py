@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -325,36 +327,45 @@ def test_the_candidates_and_the_cloud_are_built_only_for_a_subscriber(monkeypatc
         rclpy.try_shutdown()
 
 
-def test_odometry_whose_lag_keeps_growing_still_updates_once_a_transform_tolerance() -> None:
-    """An executor that cannot keep up serves one odometry message a spin while the scans stay fresh: the
-    odometry's lag grows past transform_tolerance. The node then updates late, with the scans its odometry
-    reaches, instead of dropping each before its odometry comes (the demo's starvation under load)."""
+@contextlib.contextmanager
+def _tracking_node(office: GridMap, start: np.ndarray, handled: list[Any]) -> Iterator[Any]:
+    """An active mcl_baseline node on ``office``, started at ``start``, that appends ``(stamp, output)`` to
+    ``handled`` instead of publishing."""
     rclpy = pytest.importorskip("rclpy")
     from robot_localization_suite.nodes.localizer_node import LocalizerNode
 
-    office = office_map()
-    run = drive(office, steps=120, seed=2)
     rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=2000", "-p", "min_particles:=500"])
     node = LocalizerNode(registry.plugin("mcl_baseline"))
     node.trigger_configure()
     node.trigger_activate()
-    handled: list[float] = []
-    node.publish = lambda output, stamp=None: handled.append(stamp)  # type: ignore[method-assign]
+    node.publish = lambda output, stamp=None: handled.append((stamp, output))  # type: ignore[method-assign]
     try:
         node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
-        node.adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2] * 3)))
+        node.adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, start, np.diag([0.05**2] * 3)))
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_odometry_whose_lag_keeps_growing_still_updates_once_a_transform_tolerance() -> None:
+    """An executor that cannot keep up serves one odometry message a spin while the scans stay fresh: the
+    odometry's lag grows past transform_tolerance. The node then updates late, with the scans its odometry
+    reaches, instead of dropping each before its odometry comes (the demo's starvation under load)."""
+    office = office_map()
+    run = drive(office, steps=120, seed=2)
+    handled: list[tuple[float, Any]] = []
+    with _tracking_node(office, run.truth[0], handled) as node:
         node._on_odom(conversions.odometry_to_msg(run.stamps[0], run.odometry[0], frame_id="odom"))
         for k in range(1, 120):  # odometry at half the scan rate: 6 s behind at the end
             node._on_scan(_scan_msg(run.scans[k]))
             if k % 2 == 0:
                 node._on_odom(conversions.odometry_to_msg(run.stamps[k // 2], run.odometry[k // 2], frame_id="odom"))
-        reached = run.stamps[59]
-        assert handled and handled[-1] >= reached - 2.0  # within two tolerances of where the odometry is
-        assert np.all(np.diff(handled) > 0.0)  # in order, each once
-        assert len([stamp for stamp in handled if stamp > run.stamps[20]]) >= 3  # past the first second of lag
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    stamps = [stamp for stamp, _ in handled]
+    reached = run.stamps[59]
+    assert stamps and stamps[-1] >= reached - 2.0  # within two tolerances of where the odometry is
+    assert np.all(np.diff(stamps) > 0.0)  # in order, each once
+    assert len([stamp for stamp in stamps if stamp > run.stamps[20]]) >= 3  # past the first second of lag
 
 
 def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never_starves_them() -> None:
@@ -362,21 +373,14 @@ def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never
     (none is updated with an earlier instant's), and none is lost for a newer scan that also waits. With
     the odometry stopped, nothing is updated with odometry it lacks; when it comes back, the scans still
     waiting are updated."""
-    rclpy = pytest.importorskip("rclpy")
-    from robot_localization_suite.nodes.localizer_node import MAX_WAITING_INPUTS, LocalizerNode
+    pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import MAX_WAITING_INPUTS
 
     office = office_map()
     run = drive(office, steps=90, seed=2)
     lag = 3  # scans (0.3 s at 10 Hz), within the default transform_tolerance of 1 s
-    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=2000", "-p", "min_particles:=500"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
-    node.trigger_configure()
-    node.trigger_activate()
     handled: list[tuple[float, Any]] = []  # (scan stamp, its output: None where the filter did not move enough)
-    node.publish = lambda output, stamp=None: handled.append((stamp, output))  # type: ignore[method-assign]
-    try:
-        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
-        node.adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.05**2] * 3)))
+    with _tracking_node(office, run.truth[0], handled) as node:
         odometry = [conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom")
                     for k in range(len(run.stamps))]
         node._on_odom(odometry[0])
@@ -407,6 +411,3 @@ def test_odometry_trailing_the_scans_by_several_periods_delays_updates_but_never
         last = [output for _, output in handled if output is not None][-1].estimate
         assert last.stamp > run.stamps[80]
         assert np.hypot(*(last.pose[:2] - run.truth[89, :2])) < 0.3
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()

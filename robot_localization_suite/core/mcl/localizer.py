@@ -588,8 +588,9 @@ class MonteCarloLocalizer:
         self._compact = tight
         compact = tight and effective >= s.localized_min_effective_particles
         # The fit holds on average and for this scan (a kidnapping drops it at once; w_fast follows slowly).
-        scan_slow, scan_fast = self._scan_fit_slow.value, self._scan_fit_fast.value
-        fit_holds = scan_slow <= 0.0 or min(scan_fast, self._scan_fit) >= s.lost_fit_ratio * scan_slow
+        scan_slow = self._scan_fit_slow.value
+        fit_holds = not self.fit_dropped and (scan_slow <= 0.0
+                                              or self._scan_fit_fast.value >= s.lost_fit_ratio * scan_slow)
         # A rival cluster with ambiguous_cluster_weight is a second hypothesis: no LOCALIZED beside it.
         if s.max_rivals > 0:
             self._consider_rivals(labels, ranked, np.asarray(cluster_weights, dtype=np.float64), kept, weights, pose)
