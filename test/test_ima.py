@@ -461,6 +461,16 @@ def test_two_places_seen_alike_are_ambiguous_until_one_is_told_apart(true_panora
     assert told.details["place"] == "WEST" and told.status is LocalizerStatus.LOCALIZED
 
 
+def test_a_place_matched_below_the_heading_threshold_is_not_localized(true_panoramas: list[np.ndarray]) -> None:
+    # WEST alone matches at 0.55: a destination (above eps_M 0.5), but too weak to correct the heading
+    # (eps_phi 0.6), so the pose's heading is the odometry's: AMBIGUOUS. At 0.9 it is corrected: LOCALIZED.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings())
+    weak, strong = _drive_east(tracker, [(0.0, _seen({_WEST: (0.55, 0)})), (0.6, _seen({_WEST: (0.9, 0)}))])
+    assert weak.details["kind"] == "destination" and weak.details["place"] == "WEST"
+    assert not weak.heading_corrected and weak.status is LocalizerStatus.AMBIGUOUS
+    assert strong.heading_corrected and strong.status is LocalizerStatus.LOCALIZED
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

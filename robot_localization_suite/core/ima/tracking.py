@@ -282,7 +282,9 @@ class ImaTopoLocalizer:
         kind = "virtual" if destination_virtual[best] else "destination"
         elsewhere = np.asarray(nodes) != winner_node
         rival = float(activity[elsewhere].max()) if elsewhere.any() else 0.0
-        named = not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
+        # The node stands behind a pose whose heading it could correct (eps_phi); a weaker match names a
+        # place but leaves the heading to the odometry.
+        named = corrected and not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
         return self._estimate(
             stamp,
             winner_node,
