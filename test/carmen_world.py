@@ -45,6 +45,25 @@ def flaser_line(ranges: Sequence[float], pose: Sequence[float], stamp: float, lo
     return f"FLASER {len(ranges)} {values} {x:.6f} {y:.6f} {theta:.6f} {x:.6f} {y:.6f} {theta:.6f} {stamp!r} host {logger!r}\n"
 
 
+def robotlaser_line(
+    ranges: Sequence[float],
+    pose: Sequence[float],
+    stamp: float,
+    *,
+    start_angle: float = -np.pi / 2,
+    fov: float = np.pi,
+    resolution: float = np.pi / 180,
+    remissions: Sequence[float] = (),
+) -> str:
+    """One ROBOTLASER1 line (CARMEN laser-new): geometry, ranges, remissions, laser and robot pose, stamps."""
+    values = " ".join(f"{r:.4f}" for r in ranges)
+    x, y, theta = pose
+    echo = " ".join([str(len(remissions)), *(f"{e:.1f}" for e in remissions)])
+    return (f"ROBOTLASER1 0 {start_angle!r} {fov!r} {resolution!r} 81.9 0.01 0 {len(ranges)} {values} {echo} "
+            f"{x:.6f} {y:.6f} {theta:.6f} {x:.6f} {y:.6f} {theta:.6f} 0.3 0.0 0.55 0.375 1000000.0 "
+            f"{stamp!r} host {stamp!r}\n")
+
+
 def odom_line(pose: Sequence[float], stamp: float) -> str:
     x, y, theta = pose
     return f"ODOM {x:.6f} {y:.6f} {theta:.6f} 0 0 0 {stamp!r} host {stamp!r}\n"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from carmen_world import corridor_poses, write_log
+from carmen_world import corridor_poses, corridor_ranges, robotlaser_line, write_log
 
 from robot_localization_suite.core.grid_map import load_map_yaml
 from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, odometry_delta, read_odometry_noise
@@ -170,10 +170,87 @@ def test_non_numeric_field_is_reported(tmp_path):
 def test_log_without_flaser_lines_is_an_error(tmp_path):
     log_path = tmp_path / "odom_only.log"
     log_path.write_text("# a CARMEN log\nODOM 0 0 0 0 0 0 0.1 host 0.1\nODOM 0.1 0 0 0 0 0 0.2 host 0.2\n")
-    with pytest.raises(CarmenLogError, match="no usable FLASER line"):
+    with pytest.raises(CarmenLogError, match="no usable FLASER or ROBOTLASER1 line"):
         convert_log(log_path, tmp_path / "out")
     assert not (tmp_path / "out").exists()
     assert carmen_to_bag.main([str(log_path), str(tmp_path / "out")]) == 1
+
+
+def _as_robotlaser(line: str) -> str:
+    """A FLASER line of the Intel log written as the ROBOTLASER1 line CARMEN's laser-new logs it as."""
+    tokens = line.split()
+    count = int(tokens[1])
+    ranges = [float(v) for v in tokens[2 : 2 + count]]
+    pose = [float(v) for v in tokens[2 + count : 5 + count]]
+    return robotlaser_line(ranges, pose, float(tokens[8 + count]), remissions=[1.0] * 3)
+
+
+def test_a_robotlaser1_log_converts_to_the_same_bag_and_map_as_its_flaser_lines(converted, tmp_path):
+    # Some CARMEN logs hold the front laser only as ROBOTLASER1 lines (geometry stated, remissions, two poses).
+    lines = [_as_robotlaser(line) if line.startswith("FLASER") else line for line in converted["lines"]]
+    log_path = tmp_path / "robotlaser.log"
+    log_path.write_text("".join(lines))
+    log = carmen_to_bag.parse_carmen_log(log_path)
+    assert log.message == "ROBOTLASER1" and len(log.scans) == len(flaser_poses(converted["lines"]))
+    report = convert_log(log_path, tmp_path / "robotlaser", map_out=tmp_path / "robotlaser.yaml",
+                         settings=ConversionSettings(seed=3))
+    assert report.stamp_source == "ROBOTLASER1 ipc_timestamp"
+    for topic in ("/scan", "/ground_truth", "/odom"):
+        ours = [m.msg for m in read_bag(tmp_path / "robotlaser", [topic])]
+        theirs = [m.msg for m in read_bag(converted["bag"], [topic])]
+        assert len(ours) == len(theirs)
+        if topic == "/scan":
+            for a, b in zip(ours, theirs, strict=True):
+                assert a.angle_min == pytest.approx(b.angle_min) and a.angle_increment == pytest.approx(b.angle_increment)
+                assert np.array_equal(np.asarray(a.ranges), np.asarray(b.ranges))
+        else:
+            assert np.array([conversions.odometry_from_msg(m)[1] for m in ours]) == pytest.approx(
+                np.array([conversions.odometry_from_msg(m)[1] for m in theirs]), abs=1e-4)  # poses written to 6 digits
+    assert np.array_equal(load_map_yaml(tmp_path / "robotlaser.yaml").occupied_mask,
+                          load_map_yaml(converted["yaml"]).occupied_mask)
+
+
+def test_a_robotlaser1_line_gives_its_own_beam_geometry_to_the_scan(tmp_path):
+    # A 270-degree scanner at 0.5 degree (541 beams): FLASER's guess from the count would say 180 degrees.
+    poses = corridor_poses(12)
+    start, step = -0.75 * np.pi, np.pi / 360
+    lines = [robotlaser_line(np.full(541, 1.0 + 0.01 * i), pose, 10.0 + 0.25 * i, start_angle=start,
+                             fov=1.5 * np.pi, resolution=step) for i, pose in enumerate(poses)]
+    # A line that states no resolution spreads its field of view over the gaps; one with neither is skipped.
+    lines.append(robotlaser_line(np.full(541, 1.2), poses[-1] + [0.45, 0, 0], 13.0, start_angle=start,
+                                 fov=1.5 * np.pi, resolution=0.0))
+    lines.append(robotlaser_line(np.full(541, 1.2), poses[-1] + [0.9, 0, 0], 13.25, resolution=0.0, fov=0.0))
+    log_path = tmp_path / "wide.log"
+    log_path.write_text("".join(lines))
+    skipped = []
+    log = carmen_to_bag.parse_carmen_log(log_path, on_skip=lambda n, why: skipped.append((n, why)))
+    assert skipped == [(14, "malformed ROBOTLASER1 line (angular resolution 0.0 and field of view 0.0 give no "
+                            "beam spacing)")]
+    assert np.array([carmen_log.scan_geometry(s) for s in log.scans]) == pytest.approx(np.tile([start, step], (13, 1)))
+    convert_log(log_path, tmp_path / "wide")
+    msg = next(read_bag(tmp_path / "wide", ["/scan"])).msg
+    assert len(msg.ranges) == 541 and msg.angle_min == pytest.approx(start)
+    assert msg.angle_max == pytest.approx(0.75 * np.pi, abs=1e-6)
+
+
+def test_a_malformed_robotlaser1_line_is_named_and_a_log_with_both_kinds_is_read_from_its_flaser_lines(tmp_path):
+    poses = corridor_poses(3)
+    good = robotlaser_line(corridor_ranges(poses[0]), poses[0], 10.0)
+    tokens = good.split()
+    truncated = " ".join(tokens[:-10]) + "\n"  # cut inside the poses
+    bad_remissions = " ".join(tokens[:190] + ["x"] + tokens[191:]) + "\n"  # 9 + 181 fields before the count
+    log_path = tmp_path / "bad.log"
+    log_path.write_text(good + truncated + bad_remissions)
+    skipped = []
+    log = carmen_to_bag.parse_carmen_log(log_path, on_skip=lambda n, why: skipped.append((n, why)))
+    assert len(log.scans) == 1
+    assert skipped[0][0] == 2 and skipped[0][1].startswith("malformed ROBOTLASER1 line (truncated")
+    assert skipped[1] == (3, "malformed ROBOTLASER1 line (remission count 'x' is not an integer)")
+    both = write_log(tmp_path / "both.log", poses)
+    with both.open("a") as stream:
+        stream.write(good)
+    assert carmen_to_bag.parse_carmen_log(both).message == "FLASER"
+    assert len(carmen_to_bag.parse_carmen_log(both).scans) == 3
 
 
 def test_missing_log_is_an_error(tmp_path):

@@ -65,7 +65,7 @@ class CvBlock:
 
     Attributes:
         block, blocks: ``k`` of ``K`` (1-based).
-        scan_range: ``[first, last + 1)``, indices into the log's FLASER scans.
+        scan_range: ``[first, last + 1)``, indices into the log's front-laser scans.
         time_range: stamps [s] of its first and last scan.
         status: ``ok`` (bag and map written), ``skipped`` (too short) or ``refused`` (unusable map).
         reason: why it was skipped or refused ("" when ok).

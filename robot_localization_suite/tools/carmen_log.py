@@ -1,4 +1,7 @@
-"""Read a corrected CARMEN log: its FLASER scans, their timestamps and what is wrong with them.
+"""Read a corrected CARMEN log: its front-laser scans, their timestamps and what is wrong with them.
+
+The front laser is logged as ``FLASER`` (old style) or ``ROBOTLASER1`` (CARMEN's laser-new, which
+states its own beam geometry); a log with both is read from its FLASER lines.
 
 The line format, beam geometry and no-return rule are in ``carmen_to_bag``'s docstring;
 the timestamp checks, fallbacks and what each of the four Radish logs needs are in
@@ -28,6 +31,7 @@ __all__ = [
     "StampChoice",
     "parse_carmen_log",
     "beam_geometry",
+    "scan_geometry",
     "detect_max_range",
     "check_stamps",
     "assign_stamps",
@@ -37,6 +41,13 @@ __all__ = [
 
 # Fields after the ranges: x y theta odom_x odom_y odom_theta ipc_timestamp (host and logger_timestamp optional).
 _REQUIRED_TAIL = 7
+# ROBOTLASER1 laser_type start_angle fov angular_resolution max_range accuracy remission_mode n r1..rn
+#   m e1..em  laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv forward_safety side_safety
+#   turn_axis timestamp (host and logger_timestamp optional)
+_ROBOTLASER_HEAD = 9  # the tag and the eight fields up to and including n
+_ROBOTLASER_TAIL = 12  # laser pose, robot pose, tv rv forward_safety side_safety turn_axis, timestamp
+FLASER = "FLASER"
+ROBOTLASER = "ROBOTLASER1"
 # ODOM x y theta tv rv accel ipc_timestamp host logger_timestamp: the ipc_timestamp's index.
 _ODOM_STAMP_INDEX = 7
 
@@ -46,24 +57,25 @@ WHOLE_SECONDS_FRACTION = 0.9  # a source is rounded when this share of its valid
 VALID_FRACTION = 0.5  # a source is usable when at least this share of its stamps are valid ...
 STEP_BACK_FRACTION = 0.1  # ... and at most this share of the steps between them (or one step) do not increase
 
-SOURCE_IPC = "FLASER ipc_timestamp"
-SOURCE_LOGGER = "FLASER logger_timestamp"
+SOURCE_IPC = "FLASER ipc_timestamp"  # check_stamps' default name; choose_stamps names the sources by the lines' tag
 SOURCE_ODOM = "ODOM lines"
 SOURCE_PERIOD = "--period"
 
 
 class CarmenLogError(LocalizationSuiteError):
-    """A CARMEN log cannot be converted (missing, unreadable, or without FLASER lines)."""
+    """A CARMEN log cannot be converted (missing, unreadable, or without front-laser lines)."""
 
 
 @dataclass(frozen=True)
 class CarmenScan:
-    """One FLASER line: raw ranges [m], corrected laser pose, and the times the log gives it [s].
+    """One front-laser line: raw ranges [m], corrected laser pose, and the times the log gives it [s].
 
     Attributes:
         timestamp: the line's ``ipc_timestamp``.
         logger_timestamp: the line's ``logger_timestamp`` (NaN if the line has none).
         odom_timestamp: ``ipc_timestamp`` of the last ODOM line before this one (NaN if none).
+        angle_min, angle_increment: the beam geometry a ROBOTLASER1 line states [rad]; NaN for a
+            FLASER line, whose geometry is :func:`beam_geometry`'s guess from the beam count.
     """
 
     line_number: int
@@ -72,14 +84,17 @@ class CarmenScan:
     timestamp: float
     logger_timestamp: float = math.nan
     odom_timestamp: float = math.nan
+    angle_min: float = math.nan
+    angle_increment: float = math.nan
 
 
 @dataclass
 class CarmenLog:
-    """The FLASER scans of a log and the lines that were skipped (line number, reason)."""
+    """The front-laser scans of a log, the lines that were skipped (line number, reason) and their tag."""
 
     scans: list[CarmenScan]
     skipped: list[tuple[int, str]] = field(default_factory=list)
+    message: str = FLASER
 
 
 def _open_text(path: Path):
@@ -118,6 +133,56 @@ def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.fl
     return ranges, pose, timestamp, logger
 
 
+def _parse_robotlaser(
+    tokens: list[str],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float, float, float]:
+    """Ranges, laser pose, ipc and logger timestamps, angle_min and increment of one ROBOTLASER1 line."""
+    if len(tokens) < _ROBOTLASER_HEAD:
+        raise ValueError(f"truncated: {len(tokens)} fields before the readings")
+    try:
+        head = np.array(tokens[2:8], dtype=np.float64)
+        count = int(tokens[8])
+    except ValueError:
+        raise ValueError(f"header {tokens[1:9]!r} is not numbers") from None
+    start_angle, fov, resolution = float(head[0]), float(head[1]), float(head[2])
+    if not 1 <= count <= 100_000:
+        raise ValueError(f"beam count {count} out of range")
+    if not (math.isfinite(start_angle) and math.isfinite(fov) and math.isfinite(resolution)):
+        raise ValueError(f"beam geometry {[start_angle, fov, resolution]!r} is not finite")
+    remissions_at = _ROBOTLASER_HEAD + count
+    if len(tokens) <= remissions_at:
+        raise ValueError(f"truncated: {len(tokens)} fields, {remissions_at + 1} needed for {count} beams")
+    try:
+        remissions = int(tokens[remissions_at])
+    except ValueError:
+        raise ValueError(f"remission count {tokens[remissions_at]!r} is not an integer") from None
+    if remissions < 0:
+        raise ValueError(f"remission count {remissions} is negative")
+    tail_at = remissions_at + 1 + remissions
+    needed = tail_at + _ROBOTLASER_TAIL
+    if len(tokens) < needed:
+        raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
+    try:
+        ranges = np.array(tokens[_ROBOTLASER_HEAD:remissions_at], dtype=np.float64)
+        tail = np.array(tokens[tail_at:needed], dtype=np.float64)
+    except ValueError:
+        fields = tokens[_ROBOTLASER_HEAD:remissions_at] + tokens[tail_at:needed]
+        bad = next(t for t in fields if not _is_number(t))
+        raise ValueError(f"field {bad!r} is not a number") from None
+    pose = tail[:3]
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    # The stated resolution; a log that leaves it 0 spreads the field of view over the gaps.
+    if resolution > 0.0:
+        increment = resolution
+    elif count > 1 and fov > 0.0:
+        increment = fov / (count - 1)
+    else:
+        raise ValueError(f"angular resolution {resolution!r} and field of view {fov!r} give no beam spacing")
+    logger = _number_or_nan(tokens[needed + 1]) if len(tokens) > needed + 1 else math.nan
+    return ranges, pose, float(tail[11]), logger, start_angle, increment
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -142,18 +207,19 @@ def parse_carmen_log(
     *,
     on_skip: Callable[[int, str], None] | None = _report_to_stderr,
 ) -> CarmenLog:
-    """Read the FLASER lines of a CARMEN log (plain or gzip), with the time of the ODOM line before each.
+    """Read the front-laser lines of a CARMEN log (plain or gzip), with the time of the ODOM line before each.
 
-    A malformed or truncated FLASER line is reported through ``on_skip(line_number, reason)``
-    (1-based line numbers) and skipped. ODOM lines serve only as a fallback clock.
+    FLASER lines if the log has any, else ROBOTLASER1 lines. A malformed or truncated line is
+    reported through ``on_skip(line_number, reason)`` (1-based line numbers) and skipped. ODOM lines
+    serve only as a fallback clock.
 
     Raises:
-        CarmenLogError: the file is missing or unreadable, or holds no usable FLASER line.
+        CarmenLogError: the file is missing or unreadable, or holds no usable front-laser line.
     """
     path = Path(path)
     if not path.is_file():
         raise CarmenLogError(f"CARMEN log {str(path)!r} does not exist")
-    log = CarmenLog(scans=[])
+    found: dict[str, CarmenLog] = {FLASER: CarmenLog([], message=FLASER), ROBOTLASER: CarmenLog([], message=ROBOTLASER)}
     last_odom = math.nan
     try:
         with _open_text(path) as stream:
@@ -163,25 +229,34 @@ def parse_carmen_log(
                     if tokens[0] == "ODOM":
                         last_odom = _number_or_nan(tokens[_ODOM_STAMP_INDEX]) if len(tokens) > 7 else math.nan
                     continue
-                if not line.startswith("FLASER"):
+                if not line.startswith((FLASER, ROBOTLASER)):
                     continue
                 tokens = line.split()
-                if tokens[0] != "FLASER":
+                log = found.get(tokens[0])
+                if log is None:
                     continue
                 try:
-                    ranges, pose, timestamp, logger = _parse_flaser(tokens)
+                    if log.message == FLASER:
+                        ranges, pose, timestamp, logger = _parse_flaser(tokens)
+                        angle_min = increment = math.nan
+                    else:
+                        ranges, pose, timestamp, logger, angle_min, increment = _parse_robotlaser(tokens)
                 except ValueError as exc:
                     log.skipped.append((line_number, str(exc)))
                     if on_skip is not None:
-                        on_skip(line_number, f"malformed FLASER line ({exc})")
+                        on_skip(line_number, f"malformed {log.message} line ({exc})")
                     continue
-                log.scans.append(CarmenScan(line_number, ranges, pose, timestamp, logger, last_odom))
+                log.scans.append(
+                    CarmenScan(line_number, ranges, pose, timestamp, logger, last_odom, angle_min, increment)
+                )
     except (OSError, EOFError, gzip.BadGzipFile) as exc:
         raise CarmenLogError(f"CARMEN log {str(path)!r} cannot be read: {exc}") from exc
-    if not log.scans:
-        detail = f" ({len(log.skipped)} malformed)" if log.skipped else ""
-        raise CarmenLogError(f"CARMEN log {str(path)!r} holds no usable FLASER line{detail}")
-    return log
+    for log in found.values():
+        if log.scans:
+            return log
+    malformed = sum(len(log.skipped) for log in found.values())
+    detail = f" ({malformed} malformed)" if malformed else ""
+    raise CarmenLogError(f"CARMEN log {str(path)!r} holds no usable {FLASER} or {ROBOTLASER} line{detail}")
 
 
 def beam_geometry(count: int) -> tuple[float, float]:
@@ -195,6 +270,13 @@ def beam_geometry(count: int) -> tuple[float, float]:
     else:
         increment = math.pi
     return -math.pi / 2.0, increment
+
+
+def scan_geometry(scan: CarmenScan) -> tuple[float, float]:
+    """``(angle_min, angle_increment)`` [rad] of one scan: what its line states, else :func:`beam_geometry`'s guess."""
+    if math.isfinite(scan.angle_min) and math.isfinite(scan.angle_increment):
+        return scan.angle_min, scan.angle_increment
+    return beam_geometry(scan.ranges.size)
 
 
 def detect_max_range(scans: Iterable[CarmenScan], tolerance: float) -> float:
@@ -378,21 +460,23 @@ def _problem_lines(check: StampCheck, *, repaired: bool, min_step: float) -> lis
 
 
 def choose_stamps(
-    scans: list[CarmenScan], period: float, *, min_step: float = MIN_STAMP_STEP_S
+    scans: list[CarmenScan], period: float, *, min_step: float = MIN_STAMP_STEP_S, message: str = FLASER
 ) -> StampChoice:
-    """Scan stamps [s]: the FLASER ``ipc_timestamp``, else its ``logger_timestamp``, else the ODOM lines' times,
-    else one scan every ``period`` s; with a warning line per problem kind and per fallback.
+    """Scan stamps [s]: the laser line's ``ipc_timestamp``, else its ``logger_timestamp``, else the ODOM lines'
+    times, else one scan every ``period`` s; with a warning line per problem kind and per fallback.
+    ``message``: the lines' tag (``FLASER`` or ``ROBOTLASER1``), which the warnings name.
     """
+    source_ipc, source_logger = f"{message} ipc_timestamp", f"{message} logger_timestamp"
     ipc = np.array([s.timestamp for s in scans], dtype=np.float64)
-    check = check_stamps(ipc, SOURCE_IPC)
+    check = check_stamps(ipc, source_ipc)
     if check.usable:
-        return StampChoice(_repair(ipc, check, min_step), SOURCE_IPC,
+        return StampChoice(_repair(ipc, check, min_step), source_ipc,
                            tuple(_problem_lines(check, repaired=True, min_step=min_step)))
     warnings = _problem_lines(check, repaired=False, min_step=min_step)
     if not check.problems():
         warnings.append(f"{check.source}: {check.describe()}")
     alternatives = [
-        (SOURCE_LOGGER, np.array([s.logger_timestamp for s in scans], dtype=np.float64)),
+        (source_logger, np.array([s.logger_timestamp for s in scans], dtype=np.float64)),
         (SOURCE_ODOM, np.array([s.odom_timestamp for s in scans], dtype=np.float64)),
     ]
     for source, raw in alternatives:
@@ -401,7 +485,7 @@ def choose_stamps(
             continue
         other = check_stamps(raw, source)
         if np.array_equal(raw, ipc, equal_nan=True):
-            warnings.append(f"{source}: not usable either ({other.describe()}; the same values as the {SOURCE_IPC})")
+            warnings.append(f"{source}: not usable either ({other.describe()}; the same values as the {source_ipc})")
             continue
         if other.usable:
             what = " (the last ODOM line before each scan)" if source == SOURCE_ODOM else ""

@@ -3,8 +3,8 @@
     carmen_to_bag LOG OUT_DIR [--map-out MAP_YAML] [--alpha1 A] ... [--seed S] [--resolution 0.05]
     carmen_to_bag LOG OUT_DIR --blocks K [--name NAME]     (cross-validation split, tools/carmen_cv.py)
 
-Input: a (gzipped) corrected CARMEN log (Radish datasets); only ``FLASER`` lines are used
-(``tools/carmen_log.py`` parses them and chooses the stamps). Output: ``/map`` once, then per scan
+Input: a (gzipped) corrected CARMEN log (Radish datasets); only the front laser's ``FLASER`` or
+``ROBOTLASER1`` lines are used (``tools/carmen_log.py`` parses them and chooses the stamps). Output: ``/map`` once, then per scan
 ``/odom`` (the corrected trajectory through the seeded odometry noise model), ``/ground_truth``
 (the corrected pose) and ``/scan``. The map is a 5 cm log-odds occupancy grid built from the scans
 at the corrected poses. Every choice the logs leave open (beam geometry, no-returns, time,
@@ -39,6 +39,7 @@ from .carmen_log import (
     choose_stamps,
     detect_max_range,
     parse_carmen_log,
+    scan_geometry,
 )
 
 __all__ = [
@@ -241,7 +242,7 @@ class PreparedLog:
 
     def angles(self, index: int) -> NDArray[np.float64]:
         """Beam angles [rad] of scan ``index``."""
-        angle_min, increment = beam_geometry(self.scans[index].ranges.size)
+        angle_min, increment = scan_geometry(self.scans[index])
         return angle_min + increment * np.arange(self.scans[index].ranges.size, dtype=np.float64)
 
 
@@ -262,7 +263,7 @@ def prepare_log(
     scans = log.scans
     max_range = settings.max_range or detect_max_range(scans, settings.no_return_tolerance)
     poses = np.array([s.pose for s in scans])
-    choice = choose_stamps(scans, settings.period)
+    choice = choose_stamps(scans, settings.period, message=log.message)
     if on_warning is not None:
         for message in choice.warnings:
             on_warning(message)
@@ -335,7 +336,7 @@ def write_bag(
             )
             ranges = np.where(np.isfinite(scan.ranges) & (scan.ranges >= max_range), np.inf, scan.ranges)
             ranges = np.where(np.isfinite(ranges) & (ranges < 0.0), np.nan, ranges)
-            angle_min, increment = beam_geometry(scan.ranges.size)
+            angle_min, increment = scan_geometry(scan)
             writer.write(
                 "/scan",
                 conversions.scan_to_msg(
@@ -434,7 +435,7 @@ def _parser() -> argparse.ArgumentParser:
     defaults = ConversionSettings()
     parser = argparse.ArgumentParser(
         prog="carmen_to_bag",
-        description="Convert a corrected CARMEN log (FLASER lines) into a rosbag2 MCAP bag with /scan, /odom, "
+        description="Convert a corrected CARMEN log (FLASER or ROBOTLASER1 lines) into a rosbag2 MCAP bag with /scan, /odom, "
         "/ground_truth and /map, and save the occupancy map built from it. With --blocks K, cut it instead "
         "into K cross-validation blocks, each a bag with a map built from the other K-1 blocks only.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -462,7 +463,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the odometry noise")
     parser.add_argument("--resolution", type=float, default=defaults.resolution, help="map cell size [m]")
     parser.add_argument("--period", type=float, default=defaults.period,
-                        help="scan period [s] when neither the FLASER nor the ODOM lines have usable timestamps "
+                        help="scan period [s] when neither the laser nor the ODOM lines have usable timestamps "
                         "(warned on stderr)")
     parser.add_argument("--max-range", type=float, default=None,
                         help="no-return threshold [m] (default: the log's largest reading minus the tolerance)")
