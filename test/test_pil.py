@@ -664,6 +664,25 @@ def test_a_learned_ray_into_unknown_space_is_no_evidence(room: GridMap, tmp_path
     assert legacy.learning is not None and not np.any(legacy.learning.codes == CODE_UNKNOWN)
 
 
+def test_a_scan_the_map_explains_poorly_is_a_best_guess_not_localized(learned: PilLocalizer, room: GridMap) -> None:
+    # 40 % of the readings replaced by junk: the best place is still right, but its score is past
+    # kidnap_score (what the window search takes for a kidnapping), so the node does not stand behind it.
+    truth = np.array([2.5, 2.1, 0.4])
+    clean = _scan(room, truth)
+    rng = np.random.default_rng(0)
+    ranges = clean.ranges.copy()
+    junk = rng.choice(ranges.size, int(0.4 * ranges.size), replace=False)
+    ranges[junk] = rng.uniform(0.3, 6.0, junk.size)
+    scan = Scan.from_laser_fields(stamp=0.0, angle_min=float(clean.angles[0]),
+                                  angle_increment=float(clean.angles[1] - clean.angles[0]), ranges=ranges,
+                                  range_min=0.05, range_max=12.0)
+    estimate = learned.global_fix(scan)
+    settings = learned.settings
+    assert settings.kidnap_score < estimate.details["best_score"] < settings.lost_score
+    assert _pose_error(estimate.pose, truth)[0] < 0.2 and estimate.status is LocalizerStatus.AMBIGUOUS
+    assert learned.global_fix(clean).status is LocalizerStatus.LOCALIZED
+
+
 def test_a_scan_with_an_unmapped_box_in_front_still_localizes(room: GridMap, tmp_path: Path) -> None:
     """A 1 m x 0.6 m box 0.8 m in front of the robot, absent from the map: it hides a fifth of the
     scan, whose readings are shorter than the learned ranges, not longer."""

@@ -569,7 +569,9 @@ class PilLocalizer:
         ambiguous = bool(np.any(near & separate))
         if best_score > settings.lost_score:
             status = LocalizerStatus.LOST
-        elif ambiguous:
+        elif ambiguous or best_score > settings.kidnap_score:
+            # A best score the window search would take for a kidnapping is the whole map's best guess,
+            # not a fix the node stands behind (docs/pil.md, "Status").
             status = LocalizerStatus.AMBIGUOUS
         else:
             status = LocalizerStatus.LOCALIZED
