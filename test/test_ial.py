@@ -498,16 +498,20 @@ def test_tracking_keeps_the_truth_and_the_hull_is_small_once_the_robot_moved_2_m
 def test_an_empty_list_restarts_global_localization(office) -> None:
     # a kidnapping: the truth jumps, odometry does not; the list empties and IAL restarts from the whole map
     truth, odometry, scans = bounded_drive(office, 60, seed=11, kidnap_step=40)
-    localizer = IntervalLocalizer(IALSettings(max_beams=36, max_outliers=3, **ODOM_BOUNDS), office)
-    restarts = []
+    localizer = IntervalLocalizer(IALSettings(max_beams=36, max_outliers=3, settle_updates=5, **ODOM_BOUNDS), office)
+    restarts, statuses = [], []
     for k in range(len(scans)):
         localizer.on_odometry(0.1 * k, odometry[k])
         estimate = localizer.on_scan(scans[k])
+        statuses.append(estimate.status)
         if estimate.details["restarted"]:
             restarts.append(k)
             assert estimate.status is LocalizerStatus.LOST
         assert boxes_contain(estimate.boxes, truth[k]), k
     assert restarts == [40]
+    # The emptied list proved the bounds broken: the new set, small at once, is LOCALIZED only from its 5th update.
+    assert statuses[39] is LocalizerStatus.LOCALIZED and LocalizerStatus.LOCALIZED not in statuses[40:45]
+    assert set(statuses[45:]) == {LocalizerStatus.LOCALIZED}
     # a wrong initial pose empties the list on the first scan, and the same scan relocalizes
     localizer.set_initial_pose(truth[-1] + np.array([4.0, 0.0, 0.0]), np.diag([0.01, 0.01, 0.001]))
     estimate = localizer.on_scan(scans[-1])

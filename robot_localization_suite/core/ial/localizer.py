@@ -237,6 +237,8 @@ class IntervalLocalizer:
             self.settings.update_min_d, self.settings.update_min_a, measure=MotionMeasure.PATH, keep_steps=True
         )
         self._updates = 0
+        # Updates since the list last emptied (settle_updates); None: not since the start or initialpose.
+        self._since_emptied: int | None = None
         if grid_map is not None:
             self.set_map(grid_map)
 
@@ -275,11 +277,13 @@ class IntervalLocalizer:
         theta = float(wrap_angle(pose[2]))
         self.boxes = np.array([[pose[0] - half[0], pose[0] + half[0], pose[1] - half[1], pose[1] + half[1],
                                 theta - half[2], theta + half[2]]])
+        self._since_emptied = None  # a prior the user gives is not a set that just emptied
         self.odometry.take_steps()  # the box is where the robot is now
         self.odometry.request_update()
 
     def reinitialize(self) -> None:
         self.boxes = None
+        self._since_emptied = None
         self.odometry.take_steps()
         self.odometry.request_update()
 
@@ -340,10 +344,18 @@ class IntervalLocalizer:
         if len(result.boxes) == 0:
             status = LocalizerStatus.LOST
             details["restarted"] = True
+        if details["restarted"]:
+            self._since_emptied = 0
+        elif self._since_emptied is not None:
+            self._since_emptied += 1
+        settled = self._since_emptied is None or self._since_emptied >= s.settle_updates
+        if self._since_emptied is not None:
+            details["updates_since_emptied"] = self._since_emptied
         details["contractions"] = contractions
         details["limited"] = result.limited
         self.boxes = result.boxes if len(result.boxes) else None
-        return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status, contracted=True)
+        return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status, contracted=True,
+                              settled=settled)
 
     # -- GlobalFixer protocol ---------------------------------------------------------
     def global_fix(self, scan: Scan) -> Estimate:
@@ -474,6 +486,7 @@ class IntervalLocalizer:
         *,
         contracted: bool,
         best_first: bool = False,
+        settled: bool = True,
     ) -> Estimate:
         s = self.settings
         details["box_count"] = int(len(boxes))
@@ -501,7 +514,7 @@ class IntervalLocalizer:
                 status = LocalizerStatus.INITIALIZING if self.boxes is None else LocalizerStatus.AMBIGUOUS
             elif widths[0] <= s.localized_width_xy and widths[1] <= s.localized_width_xy and (
                 widths[2] <= s.localized_width_theta
-            ):
+            ) and settled:
                 status = LocalizerStatus.LOCALIZED
             else:
                 status = LocalizerStatus.AMBIGUOUS

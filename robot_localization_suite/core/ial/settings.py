@@ -71,6 +71,9 @@ class IALSettings(Settings):
                                         low=0.0, low_open=True, high=1e3)
     localized_width_theta: float = setting(math.radians(20.0), "LOCALIZED needs the hull heading width at most this",
                                            unit="rad", low=0.0, low_open=True, high=6.3)
+    settle_updates: int = setting(5, "after the list empties (proof that the bounds were broken: people, a kidnapping), "
+                                  "the new set must last this many updates before LOCALIZED; 0: at once (ours)",
+                                  low=0, high=1_000_000)
     initial_pose_sigmas: float = setting(3.0, "initialpose box half-width in standard deviations",
                                          low=0.0, low_open=True, high=100.0)
     initial_min_half_width_xy: float = setting(0.05, "initialpose box half-width at least", unit="m",
