@@ -759,6 +759,29 @@ def test_a_kidnapped_tracker_reinitialises_by_itself(
     assert math.hypot(*(final.pose[:2] - after[-1][:2])) < 0.3
 
 
+def test_a_tracker_carried_away_while_standing_still_reinitialises_without_waiting_for_motion(
+    world: GridMap, localizer: IRLocalizer
+) -> None:
+    # The robot drives down the corridor, stops, and is carried into room 2: the wheels see nothing, so no
+    # update is due by motion. The scans no longer fit any particle: it updates anyway and finds itself again.
+    tracker = IRLocalizer(settings(seed=6, global_check_updates=0), None)
+    _share_index(tracker, localizer)
+    before = _drive(world, [(1.0, 1.5), (8.0, 1.6)])
+    rng = np.random.default_rng(8)
+    estimates = _run(tracker, world, before, rng, np.zeros(3))
+    assert estimates[-1].status is LocalizerStatus.LOCALIZED and close(estimates[-1].pose, before[-1])
+    odom = tracker.odometry.latest
+    carried = np.array([5.5, 6.0, 1.2])
+    after = []
+    for k in range(len(before), len(before) + 8):
+        tracker.on_odometry(0.1 * k, odom)
+        after.append(tracker.on_scan(scan_at(world, carried, noise=0.02, rng=rng, stamp=0.1 * k)))
+    assert after[0].status is not LocalizerStatus.LOCALIZED  # the first scan there already says so
+    first_back = next(k for k, e in enumerate(after) if e.details.get("initialized_because") == "lost")
+    assert first_back <= tracker.settings.lost_update_count
+    assert close(after[-1].pose, carried) and after[-1].status is not LocalizerStatus.LOST
+
+
 def test_reinitialize_and_initial_pose(world: GridMap, localizer: IRLocalizer) -> None:
     tracker = IRLocalizer(settings(seed=2), None)
     _share_index(tracker, localizer)

@@ -112,7 +112,7 @@ class IRLocalizer:
             return self._initialise(scan, reason="start")
         if not scan.hit_mask.any():
             raise ScanError(f"scan at {scan.stamp:.3f} s has no hit to score the particles with")
-        if self.odometry.due():
+        if self.odometry.due() or self._contradicted(scan):
             estimate = self._update(scan)
             if estimate is not None:
                 return estimate
@@ -194,6 +194,21 @@ class IRLocalizer:
         self.odometry.mark_updated(self.odometry.latest)
         self._low_score_updates = 0
 
+    def _lost_floor(self) -> float:
+        """The best end-point score below which an update counts towards LOST."""
+        s = self.settings
+        if np.isfinite(self._score_average):
+            return max(s.lost_score_threshold, s.lost_score_ratio * self._score_average)
+        return s.lost_score_threshold
+
+    def _contradicted(self, scan: Scan) -> bool:
+        """Whether a scan that comes without motion enough for an update fits no predicted particle: the robot
+        was carried away while standing (docs/ir.md, "Tracking"). Then it updates now, as a moving one would."""
+        if self._fix_pose is not None:
+            return False  # no update since the fix: the next one is due anyway
+        scores = self.endpoint_scores(scan, self._predicted_particles())
+        return float(scores.max(initial=0.0)) < self._lost_floor()
+
     def _predicted_particles(self) -> NDArray[np.float64]:
         """Particles moved by the odometry since the last update, without noise."""
         assert self.particles is not None
@@ -232,10 +247,7 @@ class IRLocalizer:
         best = float(scores.max(initial=0.0))
         self._best_score = best
         average = self._score_average
-        floor = s.lost_score_threshold
-        if np.isfinite(average):
-            floor = max(floor, s.lost_score_ratio * average)
-        if best < floor:
+        if best < self._lost_floor():
             self._low_score_updates += 1
             if self._low_score_updates >= s.lost_update_count:
                 self._reset_tracking()
