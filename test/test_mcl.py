@@ -124,6 +124,26 @@ def test_the_fit_drops_at_a_kidnapping_and_not_while_tracking(office: GridMap) -
     assert next(flag for k, flag in dropped if k >= kidnap)
 
 
+def test_a_robot_carried_away_while_standing_updates_without_waiting_for_motion(office: GridMap) -> None:
+    # Tracking, then the robot stops: its own scans again update nothing (no motion). Carried elsewhere
+    # while standing (the wheels see nothing), the first scan there updates at once and is not LOCALIZED.
+    kidnap = 120
+    kidnapped = drive(office, steps=kidnap + 1, seed=4, kidnap_step=kidnap, kidnap_index=9)
+    localizer = MonteCarloLocalizer(MclSettings(random_seed=4), office)
+    localizer.set_initial_pose(kidnapped.truth[0], np.diag([0.01, 0.01, 0.003]))
+    outputs = _replay(localizer, kidnapped, stop=kidnap)
+    assert outputs[-1][1].status is LocalizerStatus.LOCALIZED
+    stamp, odom = kidnapped.stamps[kidnap - 1], kidnapped.odometry[kidnap - 1]
+
+    def standing(scan: Scan, dt: float) -> Scan:
+        localizer.on_odometry(stamp + dt, odom)
+        return Scan(stamp + dt, scan.angles, scan.ranges, scan.range_min, scan.range_max)
+
+    assert localizer.on_scan(standing(kidnapped.scans[kidnap - 1], 0.1)) is None
+    carried = localizer.on_scan(standing(kidnapped.scans[kidnap], 0.2))
+    assert carried is not None and carried.status is not LocalizerStatus.LOCALIZED
+
+
 def test_reinitialize_spreads_particles_over_free_space(office: GridMap, run: Drive) -> None:
     localizer = MonteCarloLocalizer(MclSettings(max_particles=8000), office)
     localizer.set_initial_pose(run.truth[0], np.diag([0.01, 0.01, 0.01]))

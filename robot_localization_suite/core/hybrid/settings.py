@@ -25,8 +25,9 @@ def _mcl_settings() -> MclSettings:
     """The filter as the hybrid runs it: the proposals, not Augmented MCL's random particles, recover it
     (an injected fraction must reach 1, which it never does: the fit averages still judge the status); nav2's
     likelihood field without the unmapped-obstacle class, which cost the hybrid more than it gave (docs/hybrid.md,
-    "The unmapped-obstacle class")."""
-    return MclSettings(recovery_min_injection=1.0, unmapped_obstacle_weight=0.0)
+    "The unmapped-obstacle class"); and updates only after motion, as nav2 (the proposals watch every scan;
+    docs/hybrid.md, "Standing still")."""
+    return MclSettings(recovery_min_injection=1.0, unmapped_obstacle_weight=0.0, standstill_check=False)
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from ..filter.particles import (
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..scan import Scan
-from ..se2 import wrap_angle
+from ..se2 import compose, relative, wrap_angle
 from .rivals import RivalTracker
 from .sensor_models import BeamModel, LikelihoodFieldModel, PartialMapScores
 from .settings import LASER_MODEL_TYPES, RECOVERY_SAMPLINGS, ROBOT_MODEL_TYPES, MclSettings
@@ -229,7 +229,7 @@ class MonteCarloLocalizer:
                 gate.reference = odom
             else:
                 moved = gate.moved(odom)
-        if not (moved or gate.forced):
+        if not (moved or gate.forced or self._contradicted(scan, odom)):
             return None
         if moved and gate.reference is not None and odom is not None:
             # the odometry's own noise once LOCALIZED; the wider noise keeps a searching cloud diverse (docs/mcl.md)
@@ -238,6 +238,22 @@ class MonteCarloLocalizer:
             self.rivals.predict(motion, gate.reference, odom, self.rng)
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
+
+    def _contradicted(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
+        """Whether a scan without motion enough for an update contradicts the filter: its fit at the last
+        LOCALIZED pose falls below ``lost_fit_ratio`` of the slow average, or the last update found the fit
+        collapsed. The robot was carried away while standing (docs/mcl.md, "Standing still"); it updates now."""
+        last, slow = self.last_estimate, self._scan_fit_slow.value
+        if not self.settings.standstill_check or last is None or slow <= 0.0:
+            return False
+        if self.fit_dropped:
+            return True
+        if last.status is not LocalizerStatus.LOCALIZED:
+            return False
+        reference = self.odometry.reference
+        pose = compose(last.pose, relative(reference, odom)) if reference is not None and odom is not None \
+            else last.pose
+        return bool(self.scan_fit(pose[None, :], scan)[0] < self.settings.lost_fit_ratio * slow)
 
     # -- hooks for a composite localizer (core/hybrid) -------------------------------------
     def scan_fit(self, poses: NDArray[np.float64], scan: Scan) -> NDArray[np.float64]:

@@ -106,6 +106,10 @@ class MclSettings(Settings):
     )
     update_min_d: float = setting(0.25, "translation before a filter update (nav2 0.25)", unit="m", low=0.0, high=1e3)
     update_min_a: float = setting(0.2, "rotation before a filter update (nav2 0.2)", unit="rad", low=0.0, high=7.0)
+    standstill_check: bool = setting(
+        True, "a scan without motion enough for an update still updates the filter when it contradicts it (its fit "
+        "at the last LOCALIZED pose collapses, or the last update's did): a robot carried away while standing; "
+        "false: nav2, no update without motion (ours)")
     resample_interval: int = setting(1, "filter updates between resamplings (nav2 1)", low=1, high=1000)
     resample_effective_fraction: float = setting(
         0.5, "resample only when the effective sample size is below this fraction of the particles "
