@@ -365,10 +365,9 @@ class HybridLocalizer:
         """
         s = self.settings
         last = self.mcl.last_estimate
-        reference = self.mcl.odometry.reference
         if last is None or len(self.mcl.particles) == 0:
             return {}
-        delta = relative(reference, odom) if reference is not None and odom is not None else np.zeros(3)
+        delta = self.mcl.odometry_since_update(odom)
         predicted = compose(last.pose, delta)
         advantage = np.nan_to_num(
             self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)

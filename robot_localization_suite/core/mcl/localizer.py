@@ -229,7 +229,7 @@ class MonteCarloLocalizer:
                 gate.reference = odom
             else:
                 moved = gate.moved(odom)
-        if not (moved or gate.forced or self._contradicted(scan, odom)):
+        if not (moved or gate.forced or self._contradicted(beams, odom)):
             return None
         if moved and gate.reference is not None and odom is not None:
             # the odometry's own noise once LOCALIZED; the wider noise keeps a searching cloud diverse (docs/mcl.md)
@@ -239,7 +239,7 @@ class MonteCarloLocalizer:
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 
-    def _contradicted(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
+    def _contradicted(self, beams: _Beams, odom: NDArray[np.float64] | None) -> bool:
         """Whether a scan without motion enough for an update contradicts the filter: its fit at the last
         LOCALIZED pose falls below ``lost_fit_ratio`` of the slow average, or the last update found the fit
         collapsed. The robot was carried away while standing (docs/mcl.md, "Standing still"); it updates now."""
@@ -250,12 +250,24 @@ class MonteCarloLocalizer:
             return True
         if last.status is not LocalizerStatus.LOCALIZED:
             return False
-        reference = self.odometry.reference
-        pose = compose(last.pose, relative(reference, odom)) if reference is not None and odom is not None \
-            else last.pose
-        return bool(self.scan_fit(pose[None, :], scan)[0] < self.settings.lost_fit_ratio * slow)
+        pose = compose(last.pose, self.odometry_since_update(odom))
+        return bool(self._fit_at(pose[None, :], beams)[0] < self.settings.lost_fit_ratio * slow)
+
+    def _fit_at(self, poses: NDArray[np.float64], beams: _Beams) -> NDArray[np.float64]:
+        """:meth:`scan_fit` of already selected beams."""
+        assert self._sensor is not None
+        log_likelihood = self._scan_log_likelihood(poses, beams)
+        log_likelihood[~self._pose_is_possible(poses)] = len(beams.angles) * self._sensor.floor_log_likelihood(
+            beams.max_range)
+        return np.asarray(np.exp(log_likelihood / len(beams.angles)), dtype=np.float64)
 
     # -- hooks for a composite localizer (core/hybrid) -------------------------------------
+    def odometry_since_update(self, odom: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """The motion ``odom`` reports since the last filter update, in that update's robot frame (zero if
+        either is unknown): what moves the last estimate to ``odom``'s instant."""
+        reference = self.odometry.reference
+        return relative(reference, odom) if reference is not None and odom is not None else np.zeros(3)
+
     def scan_fit(self, poses: NDArray[np.float64], scan: Scan) -> NDArray[np.float64]:
         """Per laser pose ``(P, 3)``, how well ``scan`` fits there: the geometric-mean per-beam likelihood the
         status judges (``fit`` in the details; docs/mcl.md), the floor's for a pose off the map or in an obstacle.
@@ -266,11 +278,7 @@ class MonteCarloLocalizer:
         beams = self._select_beams(scan) if self._sensor is not None else None
         if beams is None or len(pose_arr) == 0:
             return np.full(len(pose_arr), np.nan)
-        assert self._sensor is not None
-        log_likelihood = self._scan_log_likelihood(pose_arr, beams)
-        log_likelihood[~self._pose_is_possible(pose_arr)] = len(beams.angles) * self._sensor.floor_log_likelihood(
-            beams.max_range)
-        return np.asarray(np.exp(log_likelihood / len(beams.angles)), dtype=np.float64)
+        return self._fit_at(pose_arr, beams)
 
     @property
     def fit_dropped(self) -> bool:
