@@ -26,8 +26,10 @@ def _mcl_settings() -> MclSettings:
     (an injected fraction must reach 1, which it never does: the fit averages still judge the status); nav2's
     likelihood field without the unmapped-obstacle class, which cost the hybrid more than it gave (docs/hybrid.md,
     "The unmapped-obstacle class"); and updates only after motion, as nav2 (the proposals watch every scan;
-    docs/hybrid.md, "Standing still")."""
-    return MclSettings(recovery_min_injection=1.0, unmapped_obstacle_weight=0.0, standstill_check=False)
+    docs/hybrid.md, "Standing still"); its LOCALIZED judged by the proposals, not by the filter's map-vouch gate
+    (docs/hybrid.md, "A place the map vouches for")."""
+    return MclSettings(recovery_min_injection=1.0, unmapped_obstacle_weight=0.0, standstill_check=False,
+                       localized_min_explained=0.0)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from ..filter.particles import (
 )
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
+from ..metrics import map_coverage
 from ..scan import Scan
 from ..se2 import compose, relative, wrap_angle
 from .rivals import RivalTracker
@@ -141,6 +142,7 @@ class MonteCarloLocalizer:
         self.odometry = OdometryGate(self.settings.update_min_d, self.settings.update_min_a)
         self.rivals = RivalTracker(self.settings.rival_odds, self.settings.max_rivals, _RIVAL_SAMPLES,
                                    self.settings.rival_separation)
+        self._vouched: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None  # _vouched_for
         self._reset_filter_state()
         self.last_estimate: Estimate | None = None
         self._selected: tuple[Scan, _Beams | None] | None = None  # the last scan's beams (a hybrid asks 3 times)
@@ -376,6 +378,8 @@ class MonteCarloLocalizer:
         self.log_weights = np.zeros(count)
         self._reset_filter_state()
         self._draw_at_first_scan = global_start and self.settings.global_start_candidates > 1
+        if init.pose is not None:  # an initial pose vouches for itself (its odometry: the first update's)
+            self._vouched = (init.pose.copy(), None)
 
     def _reset_filter_state(self) -> None:
         """What a fresh cloud starts with: no odometry reference, recovery averages cleared."""
@@ -395,6 +399,7 @@ class MonteCarloLocalizer:
         self._trusted = False  # the last update was LOCALIZED, with no other cluster of weight
         self._draw_at_first_scan = False  # a global start's cloud is drawn from the scan's best poses (_update)
         self._scored_with_credit = False  # the last update scored unknown space with unknown_occupancy
+        self._vouched = None  # the last pose the map vouched for (or the initial pose), the odometry then
         self.rivals.clear()
 
     def _select_beams(self, scan: Scan) -> _Beams | None:
@@ -547,7 +552,7 @@ class MonteCarloLocalizer:
         if s.max_rivals > 0 and self._weigh_rivals(beams, prior_log_weights, all_beams, floor):
             weights = normalize_log_weights(self.log_weights)
         effective = float(1.0 / np.sum(weights * weights))  # effective sample size
-        estimate = self._estimate(stamp, weights, fit, len(beams.angles), effective)
+        estimate = self._estimate(stamp, weights, fit, beams, effective)
         if s.do_beamskip:
             skipped_count = 0 if skipped is None else len(skipped.angles)
             estimate = replace(estimate, details={**estimate.details, "skipped_beams": skipped_count,
@@ -589,9 +594,10 @@ class MonteCarloLocalizer:
         per_beam = np.exp(judged_sum / np.maximum(judged_count, 1.0))
         return float((mass * per_beam).sum() / total), total / beam_count
 
-    def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beam_count: int,
+    def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beams: _Beams,
                   effective: float) -> Estimate:
         s = self.settings
+        beam_count = len(beams.angles)
         # Dropping every particle lighter than (1 - mass) / N drops at most (1 - mass) of the
         # weight, so the kept ones hold at least cluster_weight_mass of it (no sort needed).
         kept = np.nonzero(weights >= (1.0 - s.cluster_weight_mass) / len(weights))[0]
@@ -631,6 +637,11 @@ class MonteCarloLocalizer:
         # nav2 skips beams once every particle is within 0.5 m; here: once the other clusters are no rival
         self._trusted = status is LocalizerStatus.LOCALIZED and best_weight >= 1.0 - 1.0 / s.rival_odds
         self._moved_since_localized = self._moved_since_localized or self._trusted
+        # The filter's own mechanics above follow its status; the robot is told LOCALIZED only where the map
+        # vouches for the place (docs/mcl.md, "A place the map vouches for").
+        vouched = status is not LocalizerStatus.LOCALIZED or self._vouched_for(pose, beams)
+        if not vouched:
+            status = LocalizerStatus.AMBIGUOUS
 
         reported = _heaviest_first(weights, s.max_reported_particles)
         candidates, candidate_weights = self.particles[reported], weights[reported]
@@ -657,8 +668,29 @@ class MonteCarloLocalizer:
                 "w_slow": round(self.w_slow, 5),
                 "w_fast": round(self.w_fast, 5),
                 "rivals": rivals,
+                "vouched": vouched,
             },
         )
+
+    def _vouched_for(self, pose: NDArray[np.float64], beams: _Beams) -> bool:
+        """Whether the map vouches for a LOCALIZED ``pose``: it continues the last vouched pose (moved by the
+        odometry since, the same hypothesis as for rivals), or ``localized_min_explained`` of this scan's end
+        points lie within two cells of a mapped obstacle there. A vouched pose becomes the last one."""
+        assert self.grid_map is not None
+        odom = self.odometry.reference
+        continues = False
+        if self._vouched is not None:
+            then_pose, then_odom = self._vouched
+            predicted = then_pose if then_odom is None or odom is None else compose(then_pose,
+                                                                                   relative(then_odom, odom))
+            continues = not self.rivals.apart(pose, predicted)
+        if not continues and self.settings.localized_min_explained > 0.0:
+            explained = map_coverage(self.grid_map, pose[None, :], beams.angles, beams.ranges[None, :],
+                                     range_max=beams.max_range)[0]
+            if not explained >= self.settings.localized_min_explained:  # NaN: no hit to judge by
+                return False
+        self._vouched = (pose.copy(), None if odom is None else odom.copy())
+        return True
 
     def _consider_rivals(self, labels: NDArray[np.int64], ranked: NDArray[np.int64],
                          cluster_weights: NDArray[np.float64], kept: NDArray[np.int64],

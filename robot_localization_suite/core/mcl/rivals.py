@@ -67,7 +67,8 @@ class RivalTracker:
     def __len__(self) -> int:
         return len(self.rivals)
 
-    def _apart(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+    def apart(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+        """Whether poses ``a`` and ``b`` are different hypotheses (``separation`` apart, or turned 45 degrees)."""
         return bool(math.hypot(a[0] - b[0], a[1] - b[1]) > self.separation
                     or abs(float(angle_difference(a[2], b[2]))) > _SEPARATE_HEADING)
 
@@ -92,7 +93,7 @@ class RivalTracker:
             rival.best = rival.samples[int(np.argmax(tempered))].copy()
             rival.log_odds += float(logsumexp(tempered)) - math.log(len(tempered)) - cloud_log_predictive
             rival.samples = rival.samples[low_variance_resample(normalize_log_weights(tempered), len(tempered), rng)]
-            if rival.log_odds >= -self.log_threshold and self._apart(rival.best, best_pose):
+            if rival.log_odds >= -self.log_threshold and self.apart(rival.best, best_pose):
                 kept.append(rival)
         self.rivals = kept
 
@@ -110,9 +111,9 @@ class RivalTracker:
         """Take the clusters (other than the best) whose odds exceed ``1 / odds`` as rivals, likeliest first."""
         for mean, weight, poses, pose_weights in zip(means, weights, members, member_weights, strict=True):
             log_odds = math.log(max(float(weight), 1e-300) / best_weight)
-            if log_odds < -self.log_threshold or not self._apart(mean, best_pose):
+            if log_odds < -self.log_threshold or not self.apart(mean, best_pose):
                 continue
-            if any(not self._apart(mean, rival.best) for rival in self.rivals):
+            if any(not self.apart(mean, rival.best) for rival in self.rivals):
                 continue
             if len(self.rivals) >= self.capacity:
                 weakest = min(range(len(self.rivals)), key=lambda i: self.rivals[i].log_odds)

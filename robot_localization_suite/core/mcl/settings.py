@@ -185,6 +185,12 @@ class MclSettings(Settings):
         0.6, "the fit is collapsing (not LOCALIZED) when the fit over every beam, averaged fast or of this scan, "
         "falls below this share of its slow average (ours)", low=0.0, high=1.0
     )
+    localized_min_explained: float = setting(
+        0.9, "a place the filter did not reach by tracking a LOCALIZED one (a global start, an injection, a rival "
+        "that won) is LOCALIZED only once this share of a scan's end points lie within two cells of a mapped "
+        "obstacle at the estimate, AMBIGUOUS until then: a place the map cannot vouch for is a guess; the "
+        "initial pose vouches for itself; 0: off (ours)", low=0.0, high=1.0
+    )
     ambiguous_cluster_weight: float = setting(
         0.2, "a second cluster this heavy makes the state AMBIGUOUS, never LOCALIZED (ours)", low=0.0, high=1.0
     )
