@@ -447,8 +447,9 @@ def map_coverage(
         grid_map: the map the scans are judged against.
         laser_poses: ``(S, 3)`` true laser poses in the map frame [m, m, rad].
         angles: ``(B,)`` or ``(S, B)`` beam angles in the laser frame [rad].
-        ranges: ``(S, B)`` raw readings [m] (NaN-pad scans with fewer beams). A hit is finite and
-            in ``[range_min, range_max)`` (REP 117, as ``core.scan.Scan``); other readings are left out.
+        ranges: ``(S, B)`` raw readings [m] (NaN-pad scans with fewer beams), or ``(B,)``: one scan judged
+            at every pose. A hit is finite and in ``[range_min, range_max)`` (REP 117, as ``core.scan.Scan``);
+            other readings are left out.
         range_max, range_min: scalars or ``(S,)`` [m].
         tolerance: [m], default ``COVERAGE_TOLERANCE_CELLS * grid_map.resolution`` (0.1 m at 5 cm).
             Measured from the centre of the end point's cell to the nearest occupied cell centre
@@ -461,6 +462,8 @@ def map_coverage(
     """
     poses = np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3)
     ranges = np.atleast_2d(np.asarray(ranges, dtype=np.float64))
+    if np.ndim(ranges) == 2 and ranges.shape[0] == 1:
+        ranges = np.broadcast_to(ranges, (poses.shape[0], ranges.shape[1]))
     if ranges.shape[0] != poses.shape[0]:
         raise ValueError(f"map_coverage: {poses.shape[0]} poses but {ranges.shape[0]} scans of ranges")
     angles = np.broadcast_to(np.asarray(angles, dtype=np.float64), ranges.shape)

@@ -490,7 +490,6 @@ class HybridLocalizer:
         s = self.settings
         if s.switch_min_explained <= 0.0 or self.grid_map is None:
             return np.ones(len(poses), dtype=bool)
-        explained = map_coverage(self.grid_map, poses, scan.angles,
-                                 np.broadcast_to(scan.ranges, (len(poses), len(scan.ranges))),
-                                 range_max=scan.range_max, range_min=scan.range_min)
+        explained = map_coverage(self.grid_map, poses, scan.angles, scan.ranges, range_max=scan.range_max,
+                                 range_min=scan.range_min)
         return np.asarray(~(explained < s.switch_min_explained), dtype=bool)

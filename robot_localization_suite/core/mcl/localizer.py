@@ -685,7 +685,7 @@ class MonteCarloLocalizer:
                                                                                    relative(then_odom, odom))
             continues = not self.rivals.apart(pose, predicted)
         if not continues and self.settings.localized_min_explained > 0.0:
-            explained = map_coverage(self.grid_map, pose[None, :], beams.angles, beams.ranges[None, :],
+            explained = map_coverage(self.grid_map, pose[None, :], beams.angles, beams.ranges,
                                      range_max=beams.max_range)[0]
             if not explained >= self.settings.localized_min_explained:  # NaN: no hit to judge by
                 return False

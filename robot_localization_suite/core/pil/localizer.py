@@ -35,6 +35,7 @@ from ..filter.odometry_gate import OdometryGate
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
+from ..metrics import map_coverage
 from ..raycast import RAY_UNKNOWN, ClassifiedRayCaster
 from ..scan import Scan
 from ..se2 import angle_difference, compose, relative, wrap_angle
@@ -540,6 +541,16 @@ class PilLocalizer:
             ranges[outcome == RAY_UNKNOWN] = np.nan
         return encode_ranges(ranges, self._range)
 
+    def _map_vouches_for(self, pose: NDArray[np.float64], scan: Scan) -> bool:
+        """Whether ``localized_min_explained`` of the scan's end points lie within two cells of a mapped
+        obstacle at ``pose`` (``map_coverage``; no hit to judge by: no)."""
+        share = self.settings.localized_min_explained
+        if share <= 0.0 or self.grid_map is None:
+            return True
+        explained = map_coverage(self.grid_map, pose[None, :], scan.angles, scan.ranges, range_max=scan.range_max,
+                                 range_min=scan.range_min)[0]
+        return bool(explained >= share)
+
     def _estimate(self, scan: Scan, search: _Search, window: str, notes: dict[str, Any]) -> Estimate:
         settings = self.settings
         details: dict[str, Any] = {
@@ -569,9 +580,9 @@ class PilLocalizer:
         ambiguous = bool(np.any(near & separate))
         if best_score > settings.lost_score:
             status = LocalizerStatus.LOST
-        elif ambiguous or best_score > settings.kidnap_score:
-            # A best score the window search would take for a kidnapping is the whole map's best guess,
-            # not a fix the node stands behind (docs/pil.md, "Status").
+        elif ambiguous or best_score > settings.kidnap_score or not self._map_vouches_for(best, scan):
+            # A best score the window search would take for a kidnapping is the whole map's best guess, and
+            # so is a place the map cannot vouch for: not a fix the node stands behind (docs/pil.md, "Status").
             status = LocalizerStatus.AMBIGUOUS
         else:
             status = LocalizerStatus.LOCALIZED

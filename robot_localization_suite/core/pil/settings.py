@@ -121,6 +121,10 @@ class PilSettings(Settings):
     lost_score: float = setting(0.5, "best normalised score above which the estimate is LOST", low=0.0, high=1.0)
     kidnap_score: float = setting(0.2, "best score in the window above which the whole map is searched",
                                   low=0.0, high=1.0)
+    localized_min_explained: float = setting(
+        0.9, "LOCALIZED needs this share of the scan's end points within two cells of a mapped obstacle at the best "
+        "pose, AMBIGUOUS below it: a place the map cannot vouch for is a guess (docs/pil.md, \"Status\"); 0: off",
+        low=0.0, high=1.0)
     ambiguity_margin: float = setting(0.03, "a separate candidate this close to the best score makes the estimate "
                                       "AMBIGUOUS", low=0.0, high=1.0)
     ambiguity_distance: float = setting(1.0, "candidates farther apart than this are separate", unit="m",
