@@ -293,6 +293,18 @@ def test_map_coverage_of_several_scans_in_one_call_and_a_scan_without_hits():
         metrics.map_coverage(grid_map, poses[:2], angles, batch, range_max=3.0)
 
 
+def test_map_coverage_judges_one_scan_at_several_poses():
+    # What a localizer asks: how much of this scan the map explains at each candidate pose.
+    grid_map = single_obstacle_map()
+    laser = centre(5, 20)
+    angles, ranges = beams_to(laser, np.array([centre(20, 20), centre(30, 30)]))  # one near, one not
+    poses = np.array([[*laser, 0.0], [*(laser + [0.0, 0.5]), 0.0]])  # the second shifts both ends 0.5 m away
+    coverage = metrics.map_coverage(grid_map, poses, angles, ranges, range_max=3.0)
+    assert coverage == pytest.approx([0.5, 0.0])
+    stacked = metrics.map_coverage(grid_map, poses, angles, np.vstack([ranges, ranges]), range_max=3.0)
+    assert stacked == pytest.approx(coverage)
+
+
 def test_coverage_at_stamps_finds_each_output_scan_and_nothing_else():
     scan_stamps = np.array([1.0, 2.0, 3.0])
     coverage = np.array([0.9, 0.5, np.nan])
