@@ -495,6 +495,39 @@ def test_tracking_keeps_the_truth_and_the_hull_is_small_once_the_robot_moved_2_m
     assert travelled > 5.0
 
 
+@pytest.mark.parametrize("check", [True, False])
+def test_a_scan_the_map_explains_less_than_the_bounds_assume_is_not_localized(office, check: bool) -> None:
+    # The bounds assume at most max_outliers of max_beams readings away from the map (3 of 36 here). From
+    # step 100 on, a crowd the map lacks answers a sixth of the 360 readings, none of the 36 IAL uses: the
+    # boxes stay tight around the truth, but the scan itself says the assumption does not hold.
+    truth, odometry, scans = bounded_drive(office, 120, seed=10)
+    localizer = IntervalLocalizer(IALSettings(max_beams=36, max_outliers=3, localized_needs_explained_scan=check,
+                                              **ODOM_BOUNDS), office)
+    rng = np.random.default_rng(0)
+    statuses = []
+    for k in range(len(scans)):
+        scan = scans[k]
+        if k >= 100:
+            angles, ranges = scan.hits()
+            used = np.unique(np.round(np.linspace(0, ranges.size - 1, 36)).astype(np.int64))
+            crowd = rng.choice(np.setdiff1d(np.arange(ranges.size), used), size=60, replace=False)
+            readings = scan.ranges.copy()
+            hit_index = np.flatnonzero(np.isfinite(readings) & (readings >= scan.range_min)
+                                       & (readings < scan.range_max))
+            readings[hit_index[crowd]] = np.minimum(0.5 * readings[hit_index[crowd]], 1.5)
+            scan = Scan(scan.stamp, scan.angles, readings, scan.range_min, scan.range_max)
+        localizer.on_odometry(0.1 * k, odometry[k])
+        estimate = localizer.on_scan(scan)
+        assert boxes_contain(estimate.boxes, truth[k]), k
+        statuses.append(estimate.status)
+    assert all(status is LocalizerStatus.LOCALIZED for status in statuses[80:100])
+    crowded = statuses[100:]
+    if check:
+        assert all(status is LocalizerStatus.AMBIGUOUS for status in crowded)
+    else:
+        assert all(status is LocalizerStatus.LOCALIZED for status in crowded)
+
+
 def test_an_empty_list_restarts_global_localization(office) -> None:
     # a kidnapping: the truth jumps, odometry does not; the list empties and IAL restarts from the whole map
     truth, odometry, scans = bounded_drive(office, 60, seed=11, kidnap_step=40)

@@ -22,7 +22,7 @@ measured figures): docs/ial.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -42,6 +42,7 @@ from ..interval import (
     normalize_angle_intervals,
 )
 from ..localizer import Estimate, LocalizerStatus
+from ..metrics import map_coverage
 from ..motion import _MIN_TRANSLATION_FOR_HEADING
 from ..scan import LaserMount, Scan
 from ..se2 import angle_difference, compose, inverse, wrap_angle
@@ -354,8 +355,8 @@ class IntervalLocalizer:
         details["contractions"] = contractions
         details["limited"] = result.limited
         self.boxes = result.boxes if len(result.boxes) else None
-        return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status, contracted=True,
-                              settled=settled)
+        return self._assumption_checked(scan, self._estimate(scan.stamp, result.boxes, result.consistent_beams,
+                                                             details, status, contracted=True, settled=settled))
 
     # -- GlobalFixer protocol ---------------------------------------------------------
     def global_fix(self, scan: Scan) -> Estimate:
@@ -377,8 +378,22 @@ class IntervalLocalizer:
         details["contractions"] = result.contractions
         details["limited"] = result.limited
         status = LocalizerStatus.LOST if len(result.boxes) == 0 else None
-        return self._estimate(scan.stamp, result.boxes, result.consistent_beams, details, status,
-                              contracted=True, best_first=True)
+        return self._assumption_checked(scan, self._estimate(scan.stamp, result.boxes, result.consistent_beams,
+                                                             details, status, contracted=True, best_first=True))
+
+    def _assumption_checked(self, scan: Scan, estimate: Estimate) -> Estimate:
+        """A LOCALIZED ``estimate`` stays LOCALIZED only where the map explains, at its pose, the share of the scan
+        the bounds assume (``localized_needs_explained_scan``; docs/ial.md, "The assumption at the estimate")."""
+        s = self.settings
+        if estimate.status is not LocalizerStatus.LOCALIZED or not s.localized_needs_explained_scan:
+            return estimate
+        assert self.obstacles is not None
+        explained = float(map_coverage(self.obstacles.grid_map, estimate.pose[None, :], scan.angles, scan.ranges,
+                                       range_max=scan.range_max, range_min=scan.range_min)[0])
+        needed = 1.0 - s.max_outliers / s.max_beams
+        details = {**estimate.details, "explained": round(explained, 4)}
+        status = LocalizerStatus.LOCALIZED if explained >= needed else LocalizerStatus.AMBIGUOUS
+        return replace(estimate, status=status, details=details)
 
     # -- the algorithm ----------------------------------------------------------------
     def predict(

@@ -74,6 +74,10 @@ class IALSettings(Settings):
     settle_updates: int = setting(5, "after the list empties (proof that the bounds were broken: people, a kidnapping), "
                                   "the new set must last this many updates before LOCALIZED; 0: at once (ours)",
                                   low=0, high=1_000_000)
+    localized_needs_explained_scan: bool = setting(
+        True, "LOCALIZED needs the map to explain, at the hull's centre, the share of the scan the bounds assume: "
+        "at least 1 - max_outliers / max_beams of its end points within two cells of a mapped obstacle; the boxes "
+        "hold the truth only while that assumption holds (ours; false: the hull's width alone)")
     initial_pose_sigmas: float = setting(3.0, "initialpose box half-width in standard deviations",
                                          low=0.0, low_open=True, high=100.0)
     initial_min_half_width_xy: float = setting(0.05, "initialpose box half-width at least", unit="m",
