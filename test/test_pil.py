@@ -683,15 +683,20 @@ def test_a_scan_the_map_explains_poorly_is_a_best_guess_not_localized(learned: P
     assert learned.global_fix(clean).status is LocalizerStatus.LOCALIZED
 
 
-def test_a_scan_with_an_unmapped_box_in_front_still_localizes(room: GridMap, tmp_path: Path) -> None:
-    """A 1 m x 0.6 m box 0.8 m in front of the robot, absent from the map: it hides a fifth of the
-    scan, whose readings are shorter than the learned ranges, not longer."""
-    truth = np.array([2.5, 2.1, 0.4])
+def _scan_with_unmapped_box(room: GridMap, truth: np.ndarray) -> Scan:
+    """The scan at ``truth`` with a 1 m x 0.6 m box 0.8 m in front of the robot that the map lacks."""
     cluttered = room.data.copy()
     centre = truth[:2] + 1.1 * np.array([math.cos(truth[2]), math.sin(truth[2])])
     ix, iy = room.world_to_cell(centre)
     cluttered[iy - 10 : iy + 10, ix - 6 : ix + 6] = 100
-    scan = _scan(GridMap(cluttered, RESOLUTION, (0.0, 0.0)), truth)
+    return _scan(GridMap(cluttered, RESOLUTION, (0.0, 0.0)), truth)
+
+
+def test_a_scan_with_an_unmapped_box_in_front_still_localizes(room: GridMap, tmp_path: Path) -> None:
+    """A 1 m x 0.6 m box 0.8 m in front of the robot, absent from the map: it hides a fifth of the
+    scan, whose readings are shorter than the learned ranges, not longer."""
+    truth = np.array([2.5, 2.1, 0.4])
+    scan = _scan_with_unmapped_box(room, truth)
     original = _scan(room, truth)
     shorter = scan.ranges < original.ranges - 0.3
     assert 0.1 < shorter.mean() < 0.3
@@ -707,11 +712,7 @@ def test_a_place_the_map_cannot_vouch_for_is_a_best_guess_with_the_same_pose(roo
     # The box of the test above hides a fifth of the scan: the fix is right and scores well, but the map
     # explains under 0.9 of the scan there, so the node does not stand behind it; the pose is the same.
     truth = np.array([2.5, 2.1, 0.4])
-    cluttered = room.data.copy()
-    centre = truth[:2] + 1.1 * np.array([math.cos(truth[2]), math.sin(truth[2])])
-    ix, iy = room.world_to_cell(centre)
-    cluttered[iy - 10 : iy + 10, ix - 6 : ix + 6] = 100
-    scan = _scan(GridMap(cluttered, RESOLUTION, (0.0, 0.0)), truth)
+    scan = _scan_with_unmapped_box(room, truth)
     estimates, localizers = {}, {}
     for share in (0.9, 0.0):
         localizers[share] = PilLocalizer(_settings(tmp_path, localized_min_explained=share))

@@ -27,6 +27,7 @@ from .se2 import angle_difference, relative, wrap_angle
 
 if TYPE_CHECKING:
     from .grid_map import GridMap
+    from .scan import Scan
 
 __all__ = [
     "outside_kidnap_until_restart",
@@ -57,6 +58,7 @@ __all__ = [
     "COVERAGE_TOLERANCE_CELLS",
     "COVERED_FRACTION",
     "map_coverage",
+    "scan_explained",
     "coverage_at_stamps",
     "coverage_rates",
 ]
@@ -485,6 +487,13 @@ def map_coverage(
     hits = hit.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(hits > 0, near.sum(axis=1) / hits, np.nan)
+
+
+def scan_explained(grid_map: GridMap, poses: ArrayLike, scan: Scan) -> NDArray[np.float64]:
+    """Per laser pose ``(P, 3)``, the share of ``scan``'s hit end points the map explains there: :func:`map_coverage`
+    of the one scan at every pose (NaN without a hit). What a localizer asks before standing behind a pose."""
+    return map_coverage(grid_map, poses, scan.angles, scan.ranges, range_max=scan.range_max,
+                        range_min=scan.range_min)
 
 
 def coverage_at_stamps(

@@ -44,7 +44,7 @@ from ..grid_map import GridMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
 from ..mcl.localizer import MonteCarloLocalizer
-from ..metrics import map_coverage
+from ..metrics import scan_explained
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
 from ..se2 import angle_difference, compose, inverse, relative
@@ -490,6 +490,5 @@ class HybridLocalizer:
         s = self.settings
         if s.switch_min_explained <= 0.0 or self.grid_map is None:
             return np.ones(len(poses), dtype=bool)
-        explained = map_coverage(self.grid_map, poses, scan.angles, scan.ranges, range_max=scan.range_max,
-                                 range_min=scan.range_min)
+        explained = scan_explained(self.grid_map, poses, scan)
         return np.asarray(~(explained < s.switch_min_explained), dtype=bool)

@@ -42,7 +42,7 @@ from ..interval import (
     normalize_angle_intervals,
 )
 from ..localizer import Estimate, LocalizerStatus
-from ..metrics import map_coverage
+from ..metrics import scan_explained
 from ..motion import _MIN_TRANSLATION_FOR_HEADING
 from ..scan import LaserMount, Scan
 from ..se2 import angle_difference, compose, inverse, wrap_angle
@@ -388,8 +388,7 @@ class IntervalLocalizer:
         if estimate.status is not LocalizerStatus.LOCALIZED or not s.localized_needs_explained_scan:
             return estimate
         assert self.obstacles is not None
-        explained = float(map_coverage(self.obstacles.grid_map, estimate.pose[None, :], scan.angles, scan.ranges,
-                                       range_max=scan.range_max, range_min=scan.range_min)[0])
+        explained = float(scan_explained(self.obstacles.grid_map, estimate.pose[None, :], scan)[0])
         needed = 1.0 - s.max_outliers / s.max_beams
         details = {**estimate.details, "explained": round(explained, 4)}
         status = LocalizerStatus.LOCALIZED if explained >= needed else LocalizerStatus.AMBIGUOUS

@@ -35,7 +35,7 @@ from ..filter.odometry_gate import OdometryGate
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
-from ..metrics import map_coverage
+from ..metrics import scan_explained
 from ..raycast import RAY_UNKNOWN, ClassifiedRayCaster
 from ..scan import Scan
 from ..se2 import angle_difference, compose, relative, wrap_angle
@@ -547,8 +547,7 @@ class PilLocalizer:
         share = self.settings.localized_min_explained
         if share <= 0.0 or self.grid_map is None:
             return True
-        explained = map_coverage(self.grid_map, pose[None, :], scan.angles, scan.ranges, range_max=scan.range_max,
-                                 range_min=scan.range_min)[0]
+        explained = scan_explained(self.grid_map, pose[None, :], scan)[0]
         return bool(explained >= share)
 
     def _estimate(self, scan: Scan, search: _Search, window: str, notes: dict[str, Any]) -> Estimate:
