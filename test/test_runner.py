@@ -103,7 +103,9 @@ def test_two_nodes_start_and_stop_cleanly_on_sigint(tmp_path: Path) -> None:
         assert set(pids) == {"sim_a", "sim_b"}
         assert all(psutil.pid_exists(pid) for pid in pids.values())
         process.send_signal(signal.SIGINT)  # what Ctrl-C does
-        assert process.wait(timeout=30) == 0
+        code = process.wait(timeout=30)
+        output.close()
+        assert code == 0, output.text()
     finally:
         if process.poll() is None:
             process.kill()

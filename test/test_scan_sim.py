@@ -13,6 +13,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -267,17 +269,46 @@ def test_record_writes_a_bag_that_reads_back_message_for_message(
     assert (truth[20].x, truth[20].y) == pytest.approx((2.0, 3.0))
 
 
+@contextmanager
+def reaped(process: subprocess.Popen) -> Iterator[subprocess.Popen]:
+    """The process, killed and reaped on the way out if a test left it running."""
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_running_node_stopped_by_a_signal_exits_0_without_a_traceback(tmp_path: Path, signum: signal.Signals) -> None:
+    """Ctrl-C or a launcher's SIGTERM stops a spinning node in its main thread: exit 0, no traceback."""
+    scenario_path = write_world(tmp_path, duration=3600.0, camera=False)
+    with reaped(subprocess.Popen(
+        [sys.executable, "-m", "robot_localization_suite.nodes.scan_sim", "--ros-args",
+         "-r", "__node:=stopped_sim", "-r", "scan:=/stopped_sim/scan", "-p", f"scenario:={scenario_path}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )) as process:
+        assert process.stderr is not None
+        started = process.stderr.readline()  # the node's first log line (ROS logs go to stderr): it spins
+        assert "simulating" in started, started
+        time.sleep(0.5)  # publishing
+        process.send_signal(signum)
+        _, err = process.communicate(timeout=30)
+    assert process.returncode == 0, err
+    assert "Traceback" not in err and "Timeout" not in err, err
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_record_stopped_by_a_signal_finishes_its_bag_and_exits_0(tmp_path: Path, signum: signal.Signals) -> None:
     """Ctrl-C or a service manager's stop: a complete bag of the steps so far, one line, no traceback."""
     scenario_path = write_world(tmp_path, duration=3600.0, camera=False)  # ~20 s of recording: stopped long before
     bag = tmp_path / "bag"
-    process = subprocess.Popen(
+    with reaped(subprocess.Popen(
         [sys.executable, "-m", "robot_localization_suite.nodes.scan_sim", "--record", str(bag),
          "--ros-args", "-p", f"scenario:={scenario_path}"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    try:
+    )) as process:
         deadline = time.monotonic() + 120
         # Stop it once it has written a few steps (chunks of compressed messages reach the file as it goes).
         while sum(p.stat().st_size for p in bag.glob("*.mcap")) < 20_000:
@@ -285,10 +316,6 @@ def test_record_stopped_by_a_signal_finishes_its_bag_and_exits_0(tmp_path: Path,
             time.sleep(0.05)
         process.send_signal(signum)
         out, err = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.communicate()
     assert process.returncode == 0, err
     assert "Traceback" not in err and err == ""
     [line] = out.splitlines()

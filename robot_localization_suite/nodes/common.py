@@ -3,20 +3,56 @@
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import shutil
+import signal
 import sys
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import LocalizationSuiteError
 from ..core.settings import Settings, help_text
 
-__all__ = ["run_node", "guarded", "help_parser", "invocation"]
+__all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "stopping"]
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SLOW_STOP_REPORT_S = 5.0  # a stop slower than this prints every thread's stack (where it hangs)
+
+
+def _interrupt(signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def init_ros(args: Sequence[str] | None = None) -> None:
+    """``rclpy.init`` with Python's own stop: SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread.
+
+    rclpy's handlers shut the context down from a thread of their own, concurrently with the main
+    thread destroying the nodes; here one thread does both, in order (README, "Running several nodes").
+    """
+    rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
+
+
+@contextmanager
+def stopping() -> Iterator[None]:
+    """Around a node's clean-up: a further SIGINT or SIGTERM ends the process (the default action),
+    and a clean-up still running after ``SLOW_STOP_REPORT_S`` prints every thread's stack to stderr."""
+    for number in STOP_SIGNALS:
+        signal.signal(number, signal.SIG_DFL)
+    faulthandler.dump_traceback_later(SLOW_STOP_REPORT_S)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+
 
 
 def guarded(node: Node, callback: Callable[..., Any], what: str) -> Callable[..., Any]:
@@ -67,7 +103,7 @@ def run_node(
     from rclpy.utilities import remove_ros_args
 
     options = parser.parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    init_ros(argv)
     node = None
     try:
         node = make_node(options)
@@ -85,12 +121,13 @@ def run_node(
         print(f"{parser.prog}: {exc}", file=sys.stderr)
         return 2
     except Exception:
-        # SIGINT/SIGTERM shut the context down while a callback was publishing
-        # ("publisher's context is invalid"): that is a normal stop, not a crash.
+        # The context shut down while a callback was publishing ("publisher's context is
+        # invalid"): that is a normal stop, not a crash.
         if rclpy.ok():
             raise
     finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        with stopping():
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
     return 0

@@ -38,6 +38,8 @@ from rclpy.executors import (
 )
 from rclpy.node import Node
 
+from .common import init_ros, stopping
+
 __all__ = ["Container", "ContainerExecutor", "main"]
 
 PACKAGE = "robot_localization_suite"
@@ -174,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                       "remaps)")
     options = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
     specs = json.loads(options.specs)
-    rclpy.init()
+    init_ros()
     container = Container(options.name)
     try:
         for spec in specs:
@@ -189,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
-        # SIGINT/SIGTERM shut the context down while a callback was publishing: a normal stop.
+        # The context shut down while a callback was publishing: a normal stop.
         if rclpy.ok():
             raise
     finally:
@@ -201,8 +203,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(code)
-        container.close()
-        rclpy.try_shutdown()
+        with stopping():
+            container.close()
+            rclpy.try_shutdown()
     return code
 
 
