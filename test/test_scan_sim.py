@@ -282,7 +282,7 @@ def reaped(process: subprocess.Popen) -> Iterator[subprocess.Popen]:
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_running_node_stopped_by_a_signal_exits_0_without_a_traceback(tmp_path: Path, signum: signal.Signals) -> None:
-    """Ctrl-C or a launcher's SIGTERM stops a spinning node in its main thread: exit 0, no traceback."""
+    """Ctrl-C or a launcher's SIGTERM ends a spinning node's loop: exit 0, no traceback, no stack dump."""
     scenario_path = write_world(tmp_path, duration=3600.0, camera=False)
     with reaped(subprocess.Popen(
         [sys.executable, "-m", "robot_localization_suite.nodes.scan_sim", "--ros-args",

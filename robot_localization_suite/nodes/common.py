@@ -26,19 +26,38 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SLOW_STOP_REPORT_S = 5.0  # a stop slower than this prints every thread's stack (where it hangs)
 
 
-def _interrupt(signum: int, _frame: Any) -> None:
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+class StopRequest:
+    """Set by SIGINT or SIGTERM; the spin loop ends at its next turn (at most 0.2 s, or when a callback returns).
+
+    No exception is raised into running code (one raised inside numba's compiler crashed a node);
+    after the first signal a second one ends the process at once (the default action).
+    """
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+
+    def __call__(self, signum: int, _frame: Any) -> None:
+        self.signal = signal.Signals(signum).name
+        for number in STOP_SIGNALS:
+            signal.signal(number, signal.SIG_DFL)
+
+    @property
+    def requested(self) -> bool:
+        return self.signal is not None
 
 
-def init_ros(args: Sequence[str] | None = None) -> None:
-    """``rclpy.init`` with Python's own stop: SIGINT and SIGTERM raise ``KeyboardInterrupt`` in the main thread.
+def init_ros(args: Sequence[str] | None = None) -> StopRequest:
+    """``rclpy.init`` with Python's own stop: SIGINT and SIGTERM set the returned ``StopRequest``.
 
     rclpy's handlers shut the context down from a thread of their own, concurrently with the main
-    thread destroying the nodes; here one thread does both, in order (README, "Running several nodes").
+    thread destroying the nodes; here the main thread leaves its spin loop, then does both, in order
+    (README, "Running several nodes").
     """
     rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, _interrupt)
+    stop = StopRequest()
+    for number in STOP_SIGNALS:
+        signal.signal(number, stop)
+    return stop
 
 
 @contextmanager
@@ -103,14 +122,14 @@ def run_node(
     from rclpy.utilities import remove_ros_args
 
     options = parser.parse_args(remove_ros_args(argv)[1:])
-    init_ros(argv)
+    stop = init_ros(argv)
     node = None
     try:
         node = make_node(options)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         # A lifecycle node's shutdown transition ends the process once its reply is sent.
-        while rclpy.ok() and not getattr(node, "exit_requested", False):
+        while rclpy.ok() and not stop.requested and not getattr(node, "exit_requested", False):
             executor.spin_once(timeout_sec=0.2)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

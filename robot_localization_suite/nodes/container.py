@@ -176,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                       "remaps)")
     options = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
     specs = json.loads(options.specs)
-    init_ros()
+    stop = init_ros()
     container = Container(options.name)
     try:
         for spec in specs:
@@ -187,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 container._report(name, exc, "could not start")
                 continue
             container.add(name, make)
-        container.spin(rclpy.ok)
+        container.spin(lambda: rclpy.ok() and not stop.requested)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
