@@ -20,7 +20,7 @@ from rclpy.signals import SignalHandlerOptions
 from ..core.errors import LocalizationSuiteError
 from ..core.settings import Settings, help_text
 
-__all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "stopping"]
+__all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "stopping", "StopRequest"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 SLOW_STOP_REPORT_S = 5.0  # a stop slower than this prints every thread's stack (where it hangs)
@@ -71,7 +71,6 @@ def stopping() -> Iterator[None]:
         yield
     finally:
         faulthandler.cancel_dump_traceback_later()
-
 
 
 def guarded(node: Node, callback: Callable[..., Any], what: str) -> Callable[..., Any]:
