@@ -258,6 +258,38 @@ def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in late)
 
 
+def test_a_twin_kidnapping_is_recovered_at_the_first_update_after_the_scans_tell_the_twins_apart(
+        cache: Path) -> None:
+    """Carried from x = 6.6 facing east to its twin (5.4, facing west), where the scans are the same, then driving
+    west towards the cabinet: once its scans show the cabinet, the injected particles (as concentrated as the
+    filter's own cluster) take the weight at the next update, not after several (they used to be drawn wider and
+    lose the comparison by their spread)."""
+    corridor, range_m = _twin_corridor(), 3.5
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True))  # same on any load
+    hybrid.set_map(corridor)
+    rng = np.random.default_rng(0)
+    before = [np.array([6.0 + 0.1 * k, 1.5, 0.0]) for k in range(7)]
+    truth = before + [np.array([5.4 - 0.1 * k, 1.5, math.pi]) for k in range(1, 40)]
+    odometry = [np.zeros(3)]
+    for k in range(1, len(truth)):
+        step = np.array([0.1, 0.0, 0.0]) if k == len(before) else relative(truth[k - 1], truth[k])
+        odometry.append(compose(odometry[-1], step))  # the odometry drives on east through the kidnapping
+    hybrid.set_initial_pose(truth[0], TIGHT)
+    errors, injected_at = [], None
+    for k, pose in enumerate(truth):
+        hybrid.on_odometry(float(k), odometry[k])
+        estimate = hybrid.on_scan(_corridor_scan(corridor, pose, float(k), range_m, rng))
+        if estimate is None or k < len(before):
+            continue
+        errors.append(pose_error(estimate.pose, pose)[0])
+        assert errors[-1] < 0.3 or estimate.status is not LocalizerStatus.LOCALIZED
+        if injected_at is None and estimate.details.get("injected"):
+            injected_at = len(errors) - 1
+    hybrid.close()
+    assert injected_at is not None and errors[injected_at - 1] > 3.0  # wrong twin until the scans differ
+    assert all(error < 0.3 for error in errors[injected_at + 1:]), errors
+
+
 # -- the camera cue -----------------------------------------------------------------------------------
 CORRIDOR_PLACES = [(x, 1.5) for x in (4.0, 4.6, 5.2, 5.8, 6.4, 7.0, 7.6, 8.2)]  # symmetric about x = 6.1
 

@@ -35,6 +35,7 @@ __all__ = [
     "kld_particle_count",
     "pose_bins",
     "cluster_particles",
+    "pose_spread",
     "weighted_pose_statistics",
     "densest_neighbourhood_mean",
     "normalize_log_weights",
@@ -212,6 +213,14 @@ def weighted_pose_statistics(
         for j in range(i, 3):
             covariance[i, j] = covariance[j, i] = (weighted * deviations[j]).sum()
     return mean, covariance
+
+
+def pose_spread(covariance: ArrayLike) -> tuple[float, float]:
+    """``(std_xy, std_yaw)`` of a pose covariance ``(3, 3)``: the standard deviation along the position's
+    widest axis and the heading's."""
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    std_xy = math.sqrt(max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0))
+    return std_xy, math.sqrt(max(float(cov[2, 2]), 0.0))
 
 
 def densest_neighbourhood_mean(

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ImageError
+from ..filter.particles import pose_spread
 from ..grid_map import GridMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
@@ -396,10 +397,21 @@ class HybridLocalizer:
         # Bayes update would give it from a uniform prior): look-alikes of the best get theirs, worse ones little
         chosen = np.flatnonzero(outside & (advantage > 0.0))
         share = np.exp(advantage[chosen] - advantage[chosen].max())
-        notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction,
-                                                   s.proposal_std_xy, s.proposal_std_yaw)
+        std_xy, std_yaw = self._injection_spread(last)
+        notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction, std_xy, std_yaw)
         self._evidence, self._better_count = 0.0, 0
         return notes
+
+    def _injection_spread(self, last: Estimate) -> tuple[float, float]:
+        """Position and heading spread of particles injected around a candidate: the filter's own cluster's (its
+        estimate's covariance), at most ``proposal_std_*``. The injected place is then weighed against the filter's
+        as sure of itself as the filter is: a wider draw would lose the comparison by its spread, not its place."""
+        s = self.settings
+        covariance = last.covariance
+        if covariance is None or not np.all(np.isfinite(covariance)):
+            return s.proposal_std_xy, s.proposal_std_yaw
+        std_xy, std_yaw = pose_spread(covariance)
+        return min(std_xy, s.proposal_std_xy), min(std_yaw, s.proposal_std_yaw)
 
     def _camera_evidence(self, poses: NDArray[np.float64], odom: NDArray[np.float64] | None,
                          images: Sequence[SeenImage]) -> NDArray[np.float64]:

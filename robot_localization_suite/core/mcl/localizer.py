@@ -33,6 +33,7 @@ from ..filter.particles import (
     kld_particle_count,
     low_variance_resample,
     normalize_log_weights,
+    pose_spread,
     weighted_pose_statistics,
 )
 from ..grid_map import GridMap
@@ -612,8 +613,7 @@ class MonteCarloLocalizer:
         best_weight = float(cluster_weights[best])
         second_weight = float(cluster_weights[ranked[1]]) if cluster_count > 1 else 0.0
 
-        std_xy = math.sqrt(max(float(np.linalg.eigvalsh(covariance[:2, :2])[-1]), 0.0))
-        std_yaw = math.sqrt(max(float(covariance[2, 2]), 0.0))
+        std_xy, std_yaw = pose_spread(covariance)
         tight = best_weight >= 0.5 and std_xy <= s.localized_max_std_xy and std_yaw <= s.localized_max_std_yaw
         self._compact = tight
         compact = tight and effective >= s.localized_min_effective_particles
