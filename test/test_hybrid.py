@@ -290,6 +290,39 @@ def test_a_twin_kidnapping_is_recovered_at_the_first_update_after_the_scans_tell
     assert all(error < 0.3 for error in errors[injected_at + 1:]), errors
 
 
+def test_driving_to_and_fro_where_the_scans_match_a_twin_place_injects_nothing(cache: Path) -> None:
+    """27 s between x = 5.6 and 6.5 of the twin corridor, where the mirrored place gives the same scans: the
+    recovery's evidence must not build up (its fitted twin candidates are weighed against the fitted candidates at
+    the filter's place, not against the filter's mean, which a fitted pose beats by a little at every scan)."""
+    corridor, range_m = _twin_corridor(), 3.5
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True))  # same on any load
+    hybrid.set_map(corridor)
+    rng = np.random.default_rng(0)
+    truth, x, heading = [], 5.6, 0.0
+    for _ in range(8):  # nine 0.1 m steps, then a half turn on the spot in eight steps
+        for _ in range(9):
+            truth.append(np.array([x, 1.5, heading]))
+            x += 0.1 * math.cos(heading)
+        for _ in range(8):
+            heading = math.remainder(heading + math.pi / 8.0, 2.0 * math.pi)
+            truth.append(np.array([x, 1.5, heading]))
+    odometry = [np.zeros(3)]
+    for k in range(1, len(truth)):
+        odometry.append(compose(odometry[-1], relative(truth[k - 1], truth[k])))
+    hybrid.set_initial_pose(truth[0], TIGHT)
+    outputs = []
+    for k, pose in enumerate(truth):
+        hybrid.on_odometry(0.2 * k, odometry[k])
+        estimate = hybrid.on_scan(_corridor_scan(corridor, pose, 0.2 * k, range_m, rng))
+        if estimate is not None:
+            outputs.append((pose, estimate))
+    hybrid.close()
+    assert len(outputs) > 60
+    assert not any(estimate.details.get("injected") for _, estimate in outputs)
+    assert max(estimate.details.get("switch_evidence") or 0.0 for _, estimate in outputs) < 1.0
+    assert all(pose_error(estimate.pose, pose)[0] < 0.3 for pose, estimate in outputs)
+
+
 # -- the camera cue -----------------------------------------------------------------------------------
 CORRIDOR_PLACES = [(x, 1.5) for x in (4.0, 4.6, 5.2, 5.8, 6.4, 7.0, 7.6, 8.2)]  # symmetric about x = 6.1
 

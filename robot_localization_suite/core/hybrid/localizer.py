@@ -358,8 +358,8 @@ class HybridLocalizer:
         """Inject particles around candidates outside the filter's support once they have explained the scans
         clearly better than its estimate (moved to this scan by the odometry).
 
-        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the estimate,
-        ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
+        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the filter's side
+        (the better of its estimate and the candidates within its support), ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
         steady one of a look-alike place once the scans start to differ, and a candidate that does worse than
         the estimate takes evidence away. Unless the filter is LOST or INITIALIZING the advantage must also have held
         for ``better_updates`` updates in a row.
@@ -370,15 +370,20 @@ class HybridLocalizer:
             return {}
         delta = self.mcl.odometry_since_update(odom)
         predicted = compose(last.pose, delta)
-        advantage = np.nan_to_num(
-            self._log_odds(fits) - self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))[0], nan=-math.inf)
+        own = self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))
+        scores = np.nan_to_num(np.concatenate([own, self._log_odds(fits)]), nan=-math.inf)
         if self.camera is not None:  # each image once in the running sum
-            camera = self._camera_evidence(np.vstack([predicted[None, :], pool]), odom,
-                                           self.camera.take_new(scan.stamp))
-            advantage = advantage + (camera[1:] - camera[0])
+            scores = scores + self._camera_evidence(np.vstack([predicted[None, :], pool]), odom,
+                                                    self.camera.take_new(scan.stamp))
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
-        outside = self._support(back) < s.support_weight
+        inside = self._support(back) >= s.support_weight
+        # The filter's side is the better of its estimate and the candidates within its support: candidates
+        # (fitted poses) against candidates, so that where two places explain the scans equally the CUSUM does not
+        # drift up only because a fitted pose beats the filter's mean.
+        reference = max(float(scores[0]), float(scores[1:][inside].max(initial=-math.inf)))
+        advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
+        outside = ~inside
         if outside.any():
             outside[outside] = self._explained(scan, pool[outside])
         if not outside.any() or not np.isfinite(advantage[outside]).any():
