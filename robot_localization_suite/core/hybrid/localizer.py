@@ -473,8 +473,10 @@ class HybridLocalizer:
         own, others = scores[0], scores[1:]
         if not np.isfinite(own):
             return estimate
-        rivals = np.flatnonzero(self._elsewhere(pool, estimate.pose)
-                                & (np.nan_to_num(others, nan=-math.inf) >= own - s.ambiguity_log_odds))
+        elsewhere = self._elsewhere(pool, estimate.pose)
+        # the estimate's place scores as its best fitted pose, as in the recovery (_recover)
+        here = max(float(own), float(np.nan_to_num(others[~elsewhere], nan=-math.inf).max(initial=-math.inf)))
+        rivals = np.flatnonzero(elsewhere & (np.nan_to_num(others, nan=-math.inf) >= here - s.ambiguity_log_odds))
         details = {**estimate.details, "estimate_log_fit": round(float(own), 3), "rivals": 0}
         if rivals.size == 0:
             return replace(estimate, details=details)
@@ -488,7 +490,7 @@ class HybridLocalizer:
         weights = np.exp(log_weights - log_weights.max())
         details["rivals"] = len(places)
         pose, covariance = estimate.pose, estimate.covariance
-        if (self.mcl.fit_dropped and others[places[0]] - own >= s.better_log_odds
+        if (self.mcl.fit_dropped and others[places[0]] - here >= s.better_log_odds
                 and self._explained(scan, pool[places[:1]])[0]):
             # The best guess is the rival: the scan contradicts the filter (its fit dropped as at a kidnapping) and the
             # rival explains it as clearly better as a recovery needs, where the map vouches for it. The filter follows
