@@ -358,10 +358,10 @@ class HybridLocalizer:
         """Inject particles around candidates outside the filter's support once they have explained the scans
         clearly better than its estimate (moved to this scan by the odometry).
 
-        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the filter's side
-        (the better of its estimate and the candidates within its support), ``e <- max(0, e + a)``: a kidnapping's large advantage crosses ``better_log_odds`` at once, the small
-        steady one of a look-alike place once the scans start to differ, and a candidate that does worse than
-        the estimate takes evidence away. Unless the filter is LOST or INITIALIZING the advantage must also have held
+        The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the filter's
+        place (the better of its estimate and the candidates within its support), ``e <- max(0, e + a)``: a
+        kidnapping's large advantage crosses ``better_log_odds`` at once, the small steady one of a look-alike place
+        once the scans start to differ, and a candidate that does worse takes evidence away. Unless the filter is LOST or INITIALIZING the advantage must also have held
         for ``better_updates`` updates in a row.
         """
         s = self.settings
@@ -378,7 +378,7 @@ class HybridLocalizer:
         # in the particles' frame (before this update's motion)
         back = compose(pool, inverse(delta))
         inside = self._support(back) >= s.support_weight
-        # The filter's side is the better of its estimate and the candidates within its support: candidates
+        # The filter's place scores as the better of its estimate and the candidates within its support: candidates
         # (fitted poses) against candidates, so that where two places explain the scans equally the CUSUM does not
         # drift up only because a fitted pose beats the filter's mean.
         reference = max(float(scores[0]), float(scores[1:][inside].max(initial=-math.inf)))
@@ -486,7 +486,7 @@ class HybridLocalizer:
             if all(self._elsewhere(pool[[k]], pool[j])[0] for j in places):
                 places.append(int(k))
         poses = np.vstack([estimate.pose[None, :], pool[places]])
-        log_weights = np.concatenate([[own], others[places]])
+        log_weights = np.concatenate([[here], others[places]])
         weights = np.exp(log_weights - log_weights.max())
         details["rivals"] = len(places)
         pose, covariance = estimate.pose, estimate.covariance
