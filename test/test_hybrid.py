@@ -29,6 +29,7 @@ from robot_localization_suite.core.ima.topomap import TopologicalMap, TopoNode
 from robot_localization_suite.core.ir.settings import IRSettings
 from robot_localization_suite.core.localizer import Estimate, Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MonteCarloLocalizer
+from robot_localization_suite.core.metrics import scan_explained
 from robot_localization_suite.core.pil.settings import PilSettings
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
@@ -131,6 +132,31 @@ def test_a_kidnapping_to_a_place_the_scan_tells_apart_is_right_at_once_and_recov
     assert first.status is LocalizerStatus.AMBIGUOUS and first.details["pose_from"] == "candidate"
     assert all(dxy < 0.3 and dtheta < 0.15 for dxy, dtheta in after), after
     assert not any(estimate.details.get("pose_from") for k, estimate in outputs if k > kidnap + 2)
+
+
+def test_after_a_kidnapping_a_person_hiding_walls_does_not_send_the_best_guess_back(
+        office: GridMap, cache: Path) -> None:
+    """The first update after the kidnapping (step 61: the odometry did not move at step 60) has a clean scan, so
+    the map vouches for the true place and it is the best guess; from then on a person stands beside the robot (a
+    quarter of the beams end 0.6 m away, on no mapped wall) and the map explains less than switch_min_explained of
+    each scan at the true pose. The place it vouched for stays vouched for while the filter's fit stays dropped,
+    so the filter follows, instead of the pose going back to the estimate the scans contradict (7.5 m off, for as
+    long as the person stays)."""
+    kidnap = 60
+    run = drive(office, steps=110, seed=6, kidnap_step=kidnap, kidnap_index=9)
+    for k in range(kidnap + 2, len(run.scans)):
+        scan = run.scans[k]
+        ranges = scan.ranges.copy()
+        ranges[: len(ranges) // 4] = 0.6  # the person, on the right
+        run.scans[k] = replace(scan, ranges=ranges)
+    hybrid = HybridLocalizer(_settings(cache, wait_for_workers=True))  # the same updates on any load
+    hybrid.set_map(office)
+    explained = [scan_explained(office, run.truth[k:k + 1], run.scans[k])[0] for k in range(kidnap + 2, len(run.scans))]
+    assert max(explained) < hybrid.settings.switch_min_explained  # the map alone no longer vouches for the place
+    outputs = _replay(hybrid, run)
+    after = [pose_error(estimate.pose, run.truth[k]) for k, estimate in outputs if k >= kidnap]
+    assert len(after) >= 6
+    assert all(dxy < 0.3 and dtheta < 0.15 for dxy, dtheta in after), after
 
 
 @pytest.mark.parametrize("min_explained", [0.9, 0.0])

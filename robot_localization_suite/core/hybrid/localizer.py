@@ -111,6 +111,8 @@ class HybridLocalizer:
         self._waiting: list[Proposal] = []  # background results not used by an update yet
         # each source's latest candidates, moved by the odometry to the pose they are kept at (until it answers again)
         self._latest: dict[str, tuple[NDArray[np.float64], NDArray[np.float64] | None]] = {}
+        # the place the map vouched for as the best guess while the filter's fit had dropped, and the odometry then
+        self._vouched: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
         self.last_estimate: Estimate | None = None
 
     # -- Localizer protocol ---------------------------------------------------------------
@@ -153,6 +155,7 @@ class HybridLocalizer:
             self.monitor.set_initial_pose(pose, covariance)
         self._seed_pending = False
         self._better_count, self._evidence = 0, 0.0
+        self._vouched = None
 
     def reinitialize(self) -> None:
         """Global localization again: the filter restarts from the next proposals (uniform until there are any)."""
@@ -238,6 +241,8 @@ class HybridLocalizer:
                 else:
                     notes.update(self._recover(scan, pool, fits, odom))
         estimate = self.mcl.on_scan(scan)
+        if not self.mcl.fit_dropped:
+            self._vouched = None
         if estimate is not None:
             verdict = self._verdict(scan, estimate, pool)
             was_localized = self.last_estimate is not None and self.last_estimate.status is LocalizerStatus.LOCALIZED
@@ -285,6 +290,7 @@ class HybridLocalizer:
     def _restart(self) -> None:
         self._seed_pending = True
         self._latest = {}
+        self._vouched = None
         self._better_count, self._evidence = 0, 0.0
 
     def _log_odds(self, fits: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -500,14 +506,24 @@ class HybridLocalizer:
             pose = poses[0].copy()
             covariance = np.diag([s.proposal_std_xy**2, s.proposal_std_xy**2, s.proposal_std_yaw**2])
             details["pose_from"] = "candidate"
+            self._vouched = (pose.copy(), self.mcl.odometry.at(scan.stamp))
         return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
 
     def _explained(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
         """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
-        a mapped obstacle there (no hit cannot be judged: True)."""
+        a mapped obstacle there (no hit cannot be judged: True). While the filter's fit stays dropped and the map
+        vouches for none of ``poses``, the place it vouched for as the best guess (moved by the odometry) stays
+        vouched for: a person beside the robot after a kidnapping hides walls from the later scans, not the place."""
         s = self.settings
         if s.switch_min_explained <= 0.0 or self.grid_map is None:
             return np.ones(len(poses), dtype=bool)
         explained = scan_explained(self.grid_map, poses, scan)
-        return np.asarray(~(explained < s.switch_min_explained), dtype=bool)
+        vouched = ~(explained < s.switch_min_explained)
+        if self._vouched is not None and self.mcl.fit_dropped and not vouched.any():
+            place, then = self._vouched
+            now = self.mcl.odometry.at(scan.stamp)
+            if then is not None and now is not None:
+                place = compose(place, relative(then, now))
+            vouched |= ~self._elsewhere(poses, place)
+        return np.asarray(vouched, dtype=bool)
