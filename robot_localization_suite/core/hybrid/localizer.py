@@ -367,8 +367,8 @@ class HybridLocalizer:
         The evidence is Page's CUSUM of the log-odds of the best candidate outside the support over the filter's
         place (the better of its estimate and the candidates within its support), ``e <- max(0, e + a)``: a
         kidnapping's large advantage crosses ``better_log_odds`` at once, the small steady one of a look-alike place
-        once the scans start to differ, and a candidate that does worse takes evidence away. Unless the filter is LOST or INITIALIZING the advantage must also have held
-        for ``better_updates`` updates in a row.
+        once the scans start to differ, and a candidate that does worse takes evidence away. Unless the filter is
+        LOST or INITIALIZING the advantage must also have held for ``better_updates`` updates in a row.
         """
         s = self.settings
         last = self.mcl.last_estimate
