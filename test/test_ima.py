@@ -447,6 +447,26 @@ def test_a_winning_virtual_destination_resets_the_odometry_only_in_code_3_1(
     assert blind.details["place"] == expected
 
 
+@pytest.mark.parametrize(("reset", "odom_x", "expected_x"),
+                         [("winner", 1.7, [1.5, 1.5, 3.5]), ("place", 1.7, [1.5, 1.5, 3.5]),
+                          ("zoom", 1.7, [1.5, 2.1, 3.2]), ("zoom", 0.95, [1.5, 2.1, 3.5])])
+def test_the_pose_is_where_the_odometry_puts_the_robot_within_the_recognised_place(
+    true_panoramas: list[np.ndarray], reset: str, odom_x: float, expected_x: list[float]
+) -> None:
+    # WEST matched without zoom (at the node, x 1.5), then 0.6 m on through the zoomed panorama (beyond
+    # the node): the odometry says x 2.1, the place is still WEST. Then MIDDLE (x 3.5) is matched with
+    # zoom: where the odometry already lies in MIDDLE's place (1.7 m from the start, x 3.2), the robot is
+    # there, off the node; where it does not (0.95 m, x 2.45, nearer WEST), the odometry is re-anchored at
+    # MIDDLE's node. "winner" (Code 3.1) and "place", which cannot tell the robot at a node from near it,
+    # put the robot on the winner's node.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(odometry_reset=reset))
+    estimates = _drive_east(tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.6, _seen({_WEST: (0.8, 2)})),
+                                      (odom_x, _seen({_MIDDLE: (0.95, 1)}))])
+    assert [e.details["place"] for e in estimates] == ["WEST", "WEST", "MIDDLE"]
+    assert [e.pose[0] for e in estimates] == pytest.approx(expected_x, abs=1e-9)
+    assert [e.pose[1] for e in estimates] == pytest.approx([2.0] * 3, abs=1e-9)
+
+
 @pytest.mark.parametrize("ratio", [1.0, 1.2])
 def test_two_places_seen_alike_are_ambiguous_until_one_is_told_apart(true_panoramas: list[np.ndarray],
                                                                        ratio: float) -> None:

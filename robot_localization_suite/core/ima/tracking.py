@@ -12,7 +12,8 @@ last heading correction), the destinations IMA finds above ``eps_M`` plus
 Departure from Code 3.1 (``odometry_reset``): by default the odometry guess
 is re-anchored at the winner only when vision names a new place, or the same
 place with a match that needed no zoom (the thesis' own proposal, 5.2.3 and
-6.1); ``"winner"`` keeps Code 3.1 exactly.
+6.1), and the pose is the odometry guess within the recognised place rather than
+the place's node; ``"winner"`` keeps Code 3.1 exactly.
 
 Notes (the reset in full, choices, status, measured figures): docs/ima.md.
 """
@@ -218,10 +219,8 @@ class ImaTopoLocalizer:
     def _update(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
         s = self.settings
         displacement, rotation, heading_now = self._odometry_action()
-        guess_node = -1
-        if self._anchor_xy is not None:
-            guess = self._anchor_xy + self._displacement_since(self._anchor_odom)[0]
-            guess_node = int(np.argmin(np.hypot(self.node_xy[:, 0] - guess[0], self.node_xy[:, 1] - guess[1])))
+        guess = self._odometry_position()
+        guess_node = -1 if guess is None else self._nearest_node(guess)
 
         place = self.bank.match(image)
         seen = np.nonzero(place.match > s.match_threshold)[0]
@@ -267,7 +266,8 @@ class ImaTopoLocalizer:
         self._reset_odom = self._odom.copy()
         self._winner_node = winner_node
         reset = self._move_anchor(
-            winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node])
+            winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node]),
+            guess,
         )
         self.origins = Hypotheses(
             node=np.asarray(nodes, dtype=np.int64),
@@ -302,12 +302,24 @@ class ImaTopoLocalizer:
             odometry_reset=reset,
         )
 
-    def _move_anchor(self, node: int, xy: NDArray[np.float64], virtual: bool, comparison: int) -> bool:
+    def _odometry_position(self) -> NDArray[np.float64] | None:
+        """``d0`` before it is rounded to a node: the anchor plus the odometry since (None before a winner)."""
+        if self._anchor_xy is None:
+            return None
+        return self._anchor_xy + self._displacement_since(self._anchor_odom)[0]
+
+    def _nearest_node(self, xy: NDArray[np.float64]) -> int:
+        return int(np.argmin(np.hypot(self.node_xy[:, 0] - xy[0], self.node_xy[:, 1] - xy[1])))
+
+    def _move_anchor(self, node: int, xy: NDArray[np.float64], virtual: bool, comparison: int,
+                     guess: NDArray[np.float64] | None) -> bool:
         """Reset the odometry (the anchor of ``d0``) to the winner as ``odometry_reset`` says; True if it moved.
 
         ``winner``: always (Code 3.1). ``place``: only to a place vision recognised (not the
-        virtual destination) that differs from the anchor's. ``zoom``: as ``place``, and
-        also to the same place when it matched without zoom (the robot is at the node).
+        virtual destination) that differs from the anchor's. ``zoom``: as ``place``, and also
+        to the same place when it matched without zoom (the robot is at the node); a new place
+        matched with zoom where the odometry ``guess`` already lies keeps the guess's position
+        (the robot is in that place, off its node).
         """
         mode = self.settings.odometry_reset
         if mode == "winner" or self._anchor_xy is None:
@@ -316,6 +328,9 @@ class ImaTopoLocalizer:
             move = False  # the virtual destination is the odometry's own guess: nothing new to reset to
         elif node != self._anchor_node:
             move = True
+            zoomed = mode == "zoom" and self.bank.zoom_on and comparison != PLAIN_COMPARISON
+            if zoomed and guess is not None and self._nearest_node(guess) == node:
+                xy = guess  # vision confirms the place the odometry is in, not where in it
         else:
             move = mode == "zoom" and self.bank.zoom_on and comparison == PLAIN_COMPARISON
         if move:
@@ -356,9 +371,14 @@ class ImaTopoLocalizer:
     ) -> Estimate:
         heading_sigma = self.settings.heading_sigma if self._heading_known else math.pi
         covariance = np.diag([self._position_sigma**2, self._position_sigma**2, heading_sigma**2])
+        # Only "zoom" with the zoom on tells the robot at the node from near it, which bounds the anchor's offset.
+        at_node_known = self.settings.odometry_reset == "zoom" and self.bank.zoom_on
+        position = self._odometry_position() if at_node_known else None
+        if position is None:
+            position = self.node_xy[node]
         return Estimate(
             stamp=stamp,
-            pose=np.array([self.node_xy[node, 0], self.node_xy[node, 1], heading]),
+            pose=np.array([position[0], position[1], heading]),
             covariance=covariance,
             status=status,
             candidates=candidates,
