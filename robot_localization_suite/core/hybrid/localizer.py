@@ -251,6 +251,8 @@ class HybridLocalizer:
                 pool = self._proposals(scan, odom, in_update=True)
                 notes["proposals"] = len(pool)
                 verdict = self._verdict(scan, estimate, pool)
+            if verdict.details.get("pose_from") == "candidate":
+                self._vouched = (verdict.pose.copy(), self.mcl.odometry.at(scan.stamp))
             estimate = self._integrity(scan, verdict)
         if due:
             self._ask_in_background(scan, estimate)
@@ -506,7 +508,6 @@ class HybridLocalizer:
             pose = poses[0].copy()
             covariance = np.diag([s.proposal_std_xy**2, s.proposal_std_xy**2, s.proposal_std_yaw**2])
             details["pose_from"] = "candidate"
-            self._vouched = (pose.copy(), self.mcl.odometry.at(scan.stamp))
         return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
 
