@@ -676,6 +676,7 @@ def test_a_params_file_or_the_paper_profile_replaces_the_packaged_and_per_bag_fi
     assert pil.factory.args[1].match_score == "correlation"
     ima = bench.registry_spec("ima_topo_localizer", params_file=registry.config_dir() / "ima_topo_localizer_paper.yaml")
     assert ima.factory.args[1].odometry_reset == "winner"  # Code 3.1
+    assert ima.factory.args[1].pose_estimate == "node"  # the thesis: the winner's node
     own = tmp_path / "mine.yaml"
     own.write_text("mcl_baseline:\n  ros__parameters:\n    max_particles: 777\n")
     assert bench.registry_spec("mcl_baseline", params_file=own).factory.args[1].max_particles == 777

@@ -447,24 +447,36 @@ def test_a_winning_virtual_destination_resets_the_odometry_only_in_code_3_1(
     assert blind.details["place"] == expected
 
 
-@pytest.mark.parametrize(("reset", "odom_x", "expected_x"),
-                         [("winner", 1.7, [1.5, 1.5, 3.5]), ("place", 1.7, [1.5, 1.5, 3.5]),
-                          ("zoom", 1.7, [1.5, 2.1, 3.2]), ("zoom", 0.95, [1.5, 2.1, 3.5])])
-def test_the_pose_is_where_the_odometry_puts_the_robot_within_the_recognised_place(
-    true_panoramas: list[np.ndarray], reset: str, odom_x: float, expected_x: list[float]
-) -> None:
-    # WEST matched without zoom (at the node, x 1.5), then 0.6 m on through the zoomed panorama (beyond
-    # the node): the odometry says x 2.1, the place is still WEST. Then MIDDLE (x 3.5) is matched with
-    # zoom: where the odometry already lies in MIDDLE's place (1.7 m from the start, x 3.2), the robot is
-    # there, off the node; where it does not (0.95 m, x 2.45, nearer WEST), the odometry is re-anchored at
-    # MIDDLE's node. "winner" (Code 3.1) and "place", which cannot tell the robot at a node from near it,
-    # put the robot on the winner's node.
-    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(odometry_reset=reset))
-    estimates = _drive_east(tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.6, _seen({_WEST: (0.8, 2)})),
-                                      (odom_x, _seen({_MIDDLE: (0.95, 1)}))])
-    assert [e.details["place"] for e in estimates] == ["WEST", "WEST", "MIDDLE"]
-    assert [e.pose[0] for e in estimates] == pytest.approx(expected_x, abs=1e-9)
-    assert [e.pose[1] for e in estimates] == pytest.approx([2.0] * 3, abs=1e-9)
+@pytest.mark.parametrize("estimate", ["node", "fused"])
+def test_the_pose_fuses_the_odometry_with_the_recognised_places(true_panoramas: list[np.ndarray],
+                                                                estimate: str) -> None:
+    # WEST (x 1.5) recognised, then 0.6 m on through the zoomed panorama: the odometry says x 2.1, the place
+    # says 1.5. Fused, each is weighed by its variance: the place's (half the node spacing, 1 m, squared)
+    # against the position's (the place's, plus the odometry's drift over 0.6 m), so the pose lies between,
+    # a little nearer the odometry. The thesis' pose is the node.
+    settings = ImaTrackerSettings(pose_estimate=estimate, odometry_drift=0.05)
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), settings)
+    first, on = _drive_east(tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (0.6, _seen({_WEST: (0.8, 2)}))])
+    place_variance = (0.5 * 2.0) ** 2  # the places are 2 m (WEST-MIDDLE) and 2.2 m apart: median spacing 2 m
+    predicted_variance = place_variance + (0.05 * 0.6) ** 2
+    gain = predicted_variance / (predicted_variance + place_variance)
+    fused_x = 2.1 + gain * (1.5 - 2.1)
+    assert first.pose[:2] == pytest.approx(PLACES["WEST"])
+    assert on.details["place"] == "WEST" and on.pose[1] == pytest.approx(2.0)
+    assert on.pose[0] == pytest.approx(fused_x if estimate == "fused" else 1.5)
+    expected_variance = (1.0 - gain) * predicted_variance if estimate == "fused" else place_variance
+    assert on.covariance[0, 0] == pytest.approx(expected_variance)
+
+
+def test_a_place_far_beyond_the_fused_position_restarts_it_there(true_panoramas: list[np.ndarray]) -> None:
+    # After WEST (x 1.5), 1 m back west the odometry says x 0.5, and only EAST (x 5.5, y 3; 5.1 m away, beyond 3
+    # standard deviations of the difference: 3 * sqrt(1 + 1) m) is recognised, clearly: a kidnapping or a wrong
+    # earlier place. The position restarts at EAST's node instead of being averaged with the odometry, which
+    # would put the robot between the two places.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(pose_estimate="fused"))
+    _, away = _drive_east(tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (-1.0, _seen({_EAST: (0.95, 0)}))])
+    assert away.details["place"] == "EAST" and away.details["position_restarted"]
+    assert away.pose[:2] == pytest.approx(PLACES["EAST"])
 
 
 @pytest.mark.parametrize("ratio", [1.0, 1.2])

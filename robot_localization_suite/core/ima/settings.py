@@ -12,10 +12,11 @@ from dataclasses import dataclass
 from ..errors import SettingsError
 from ..settings import Settings, nested, setting
 
-__all__ = ["ImaSettings", "ImaTrackerSettings", "NCC_BACKENDS", "ODOMETRY_RESETS"]
+__all__ = ["ImaSettings", "ImaTrackerSettings", "NCC_BACKENDS", "ODOMETRY_RESETS", "POSE_ESTIMATES"]
 
 NCC_BACKENDS = ("gemm", "opencv")
 ODOMETRY_RESETS = ("winner", "place", "zoom")
+POSE_ESTIMATES = ("node", "fused")
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,11 @@ class ImaTrackerSettings(Settings):
                                      low=1.0, high=1000.0)
     odometry_reset: str = setting("zoom", "where the odometry guess d0 is measured from: every winner (Code 3.1), "
                                   "a new place, or also a match without zoom (ours)", choices=ODOMETRY_RESETS)
+    pose_estimate: str = setting("fused", "the published position: the winner's node (thesis), or the odometry "
+                                 "and the recognised places fused by a Kalman filter, each place a measurement "
+                                 "with half the node spacing as standard deviation (ours)", choices=POSE_ESTIMATES)
+    odometry_drift: float = setting(0.05, "standard deviation of the odometry's position error per metre "
+                                    "travelled, for pose_estimate 'fused' (ours)", unit="m/m", low=0.0, high=1.0)
 
     def validate(self) -> None:
         if self.heading_threshold < self.match_threshold:

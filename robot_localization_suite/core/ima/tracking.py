@@ -12,8 +12,8 @@ last heading correction), the destinations IMA finds above ``eps_M`` plus
 Departure from Code 3.1 (``odometry_reset``): by default the odometry guess
 is re-anchored at the winner only when vision names a new place, or the same
 place with a match that needed no zoom (the thesis' own proposal, 5.2.3 and
-6.1), and the pose is the odometry guess within the recognised place rather than
-the place's node; ``"winner"`` keeps Code 3.1 exactly.
+6.1); ``"winner"`` keeps Code 3.1 exactly. The published position fuses the odometry and
+the recognised places (:mod:`.position`, ``pose_estimate``) instead of being the winner's node.
 
 Notes (the reset in full, choices, status, measured figures): docs/ima.md.
 """
@@ -32,6 +32,7 @@ from ..localizer import Estimate, LocalizerStatus, Place
 from ..se2 import angle_difference, compose, relative, wrap_angle
 from .images import to_grey
 from .places import PanoramaBank, PlaceMatch
+from .position import PlacePositionFilter
 from .settings import ODOMETRY_RESETS, ImaTrackerSettings
 from .topomap import TopologicalMap
 
@@ -128,6 +129,7 @@ class ImaTopoLocalizer:
         self.node_xy = topomap.positions
         self.names = topomap.names
         self._position_sigma = 0.5 * topomap.spacing
+        self.position = PlacePositionFilter(self.settings.odometry_drift)
         # The odometry; the reference is the odometry at the last run of Code 3.1.
         self.odometry = OdometryGate(self.settings.min_translation, self.settings.min_rotation)
         self.reinitialize()
@@ -155,6 +157,8 @@ class ImaTopoLocalizer:
         self._anchor_xy: NDArray[np.float64] | None = None
         self._anchor_odom = self._odom.copy()
         self._anchor_node = -1
+        self.position.reset()
+        self._position_odom = self._odom.copy()
         self.odometry.reset()
         self._heading_offset = 0.0
         self._heading_known = False
@@ -175,6 +179,12 @@ class ImaTopoLocalizer:
         self._anchor_xy = pose[:2].copy()
         self._anchor_odom = self._odom.copy()
         self._anchor_node = node
+        given = np.asarray(covariance, dtype=np.float64).reshape(-1)
+        variance = 0.5 * float(given[0] + given[4]) if given.size == 9 else math.nan  # (3, 3): x and y
+        if not (math.isfinite(variance) and variance > 0.0):
+            variance = self._position_sigma**2
+        self.position.start(pose[:2], variance)
+        self._position_odom = self._odom.copy()
         self._heading_offset = float(angle_difference(pose[2], self._odom[2]))
         self._heading_known = True
         self.odometry.request_update()
@@ -219,8 +229,12 @@ class ImaTopoLocalizer:
     def _update(self, stamp: float, image: NDArray[np.uint8]) -> Estimate | None:
         s = self.settings
         displacement, rotation, heading_now = self._odometry_action()
-        guess = self._odometry_position()
-        guess_node = -1 if guess is None else self._nearest_node(guess)
+        self.position.predict(self._displacement_since(self._position_odom)[0])
+        self._position_odom = self._odom.copy()
+        guess_node = -1
+        if self._anchor_xy is not None:
+            guess = self._anchor_xy + self._displacement_since(self._anchor_odom)[0]
+            guess_node = int(np.argmin(np.hypot(self.node_xy[:, 0] - guess[0], self.node_xy[:, 1] - guess[1])))
 
         place = self.bank.match(image)
         seen = np.nonzero(place.match > s.match_threshold)[0]
@@ -266,9 +280,11 @@ class ImaTopoLocalizer:
         self._reset_odom = self._odom.copy()
         self._winner_node = winner_node
         reset = self._move_anchor(
-            winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node]),
-            guess,
+            winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node])
         )
+        # a place vision recognised measures the position; the virtual destination is the odometry's own guess
+        restarted = False if destination_virtual[best] else self.position.correct(self.node_xy[winner_node],
+                                                                                 self._position_sigma**2)
         self.origins = Hypotheses(
             node=np.asarray(nodes, dtype=np.int64),
             xy=destination_xy,
@@ -300,26 +316,15 @@ class ImaTopoLocalizer:
             destinations=int(len(seen)),
             rival_activity=rival,
             odometry_reset=reset,
+            position_restarted=restarted,
         )
 
-    def _odometry_position(self) -> NDArray[np.float64] | None:
-        """``d0`` before it is rounded to a node: the anchor plus the odometry since (None before a winner)."""
-        if self._anchor_xy is None:
-            return None
-        return self._anchor_xy + self._displacement_since(self._anchor_odom)[0]
-
-    def _nearest_node(self, xy: NDArray[np.float64]) -> int:
-        return int(np.argmin(np.hypot(self.node_xy[:, 0] - xy[0], self.node_xy[:, 1] - xy[1])))
-
-    def _move_anchor(self, node: int, xy: NDArray[np.float64], virtual: bool, comparison: int,
-                     guess: NDArray[np.float64] | None) -> bool:
+    def _move_anchor(self, node: int, xy: NDArray[np.float64], virtual: bool, comparison: int) -> bool:
         """Reset the odometry (the anchor of ``d0``) to the winner as ``odometry_reset`` says; True if it moved.
 
         ``winner``: always (Code 3.1). ``place``: only to a place vision recognised (not the
-        virtual destination) that differs from the anchor's. ``zoom``: as ``place``, and also
-        to the same place when it matched without zoom (the robot is at the node); a new place
-        matched with zoom where the odometry ``guess`` already lies keeps the guess's position
-        (the robot is in that place, off its node).
+        virtual destination) that differs from the anchor's. ``zoom``: as ``place``, and
+        also to the same place when it matched without zoom (the robot is at the node).
         """
         mode = self.settings.odometry_reset
         if mode == "winner" or self._anchor_xy is None:
@@ -328,9 +333,6 @@ class ImaTopoLocalizer:
             move = False  # the virtual destination is the odometry's own guess: nothing new to reset to
         elif node != self._anchor_node:
             move = True
-            zoomed = mode == "zoom" and self.bank.zoom_on and comparison != PLAIN_COMPARISON
-            if zoomed and guess is not None and self._nearest_node(guess) == node:
-                xy = guess  # vision confirms the place the odometry is in, not where in it
         else:
             move = mode == "zoom" and self.bank.zoom_on and comparison == PLAIN_COMPARISON
         if move:
@@ -370,12 +372,10 @@ class ImaTopoLocalizer:
         **details: object,
     ) -> Estimate:
         heading_sigma = self.settings.heading_sigma if self._heading_known else math.pi
-        covariance = np.diag([self._position_sigma**2, self._position_sigma**2, heading_sigma**2])
-        # Only "zoom" with the zoom on tells the robot at the node from near it, which bounds the anchor's offset.
-        at_node_known = self.settings.odometry_reset == "zoom" and self.bank.zoom_on
-        position = self._odometry_position() if at_node_known else None
-        if position is None:
-            position = self.node_xy[node]
+        position, variance = self.node_xy[node], self._position_sigma**2
+        if self.settings.pose_estimate == "fused" and self.position.xy is not None:
+            position, variance = self.position.xy, self.position.variance
+        covariance = np.diag([variance, variance, heading_sigma**2])
         return Estimate(
             stamp=stamp,
             pose=np.array([position[0], position[1], heading]),

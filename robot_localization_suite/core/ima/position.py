@@ -1,0 +1,66 @@
+"""The robot's position between places: the odometry and the recognised places fused by a Kalman filter (ours).
+
+The thesis localizes to a place; a pose also needs a position. A recognised place is read as a noisy
+measurement of the position (its node, with the place's extent as standard deviation), the odometry as
+the motion between measurements (its error growing with the distance travelled). A place beyond
+``gate_sigmas`` of the fused position is a relocalization (a kidnapping, a wrong earlier place): the
+position restarts there. Notes and figures: docs/ima.md, "The pose within the place".
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["GATE_SIGMAS", "PlacePositionFilter"]
+
+GATE_SIGMAS = 3.0  # a place further than this many standard deviations restarts the position
+
+
+class PlacePositionFilter:
+    """Isotropic 2-D Kalman filter over the robot's position.
+
+    Args:
+        drift: standard deviation of the odometry's position error per metre travelled.
+        gate_sigmas: a place measured further than this many standard deviations away restarts it.
+    """
+
+    def __init__(self, drift: float, gate_sigmas: float = GATE_SIGMAS) -> None:
+        self.drift = float(drift)
+        self.gate_sigmas = float(gate_sigmas)
+        self.xy: NDArray[np.float64] | None = None
+        self.variance = math.inf
+
+    def reset(self) -> None:
+        """No position (global localization)."""
+        self.xy, self.variance = None, math.inf
+
+    def start(self, xy: ArrayLike, variance: float) -> None:
+        """A known position, with its variance per axis [m^2]."""
+        self.xy = np.asarray(xy, dtype=np.float64).reshape(2).copy()
+        self.variance = float(variance)
+
+    def predict(self, displacement: ArrayLike) -> None:
+        """Move by the odometry's ``displacement`` ``(2,)`` [m] in the map frame; the variance grows with it."""
+        if self.xy is None:
+            return
+        moved = np.asarray(displacement, dtype=np.float64).reshape(2)
+        self.xy = self.xy + moved
+        self.variance += (self.drift * float(np.hypot(moved[0], moved[1]))) ** 2
+
+    def correct(self, place_xy: ArrayLike, variance: float) -> bool:
+        """Fuse a place measured at ``place_xy`` with ``variance`` per axis; True if it restarted the position."""
+        z = np.asarray(place_xy, dtype=np.float64).reshape(2)
+        if self.xy is None:
+            self.start(z, variance)
+            return True
+        offset = z - self.xy
+        if float(offset @ offset) > self.gate_sigmas**2 * (self.variance + variance):
+            self.start(z, variance)
+            return True
+        gain = self.variance / (self.variance + variance)
+        self.xy = self.xy + gain * offset
+        self.variance = (1.0 - gain) * self.variance
+        return False
