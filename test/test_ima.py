@@ -468,6 +468,19 @@ def test_the_pose_fuses_the_odometry_with_the_recognised_places(true_panoramas: 
     assert on.covariance[0, 0] == pytest.approx(expected_variance)
 
 
+def test_recognising_the_same_place_again_and_again_does_not_make_the_position_certain(
+    true_panoramas: list[np.ndarray],
+) -> None:
+    # Six recognitions of WEST, 0.35 m apart: as independent measurements they would bring the variance down to
+    # about a sixth of the place's. They are not independent (the same view errs the same way), so the
+    # standard deviation stays at half the place's (1 m): variance 0.25 m^2.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(pose_estimate="fused"))
+    estimates = _drive_east(tracker, [(0.35 * k, _seen({_WEST: (0.9, 2)})) for k in range(6)])
+    variances = [e.covariance[0, 0] for e in estimates]
+    assert variances[0] == pytest.approx(1.0) and variances[1] == pytest.approx(0.5, abs=0.01)
+    assert min(variances) == pytest.approx(0.25) and variances[-1] == pytest.approx(0.25)
+
+
 def test_a_place_far_beyond_the_fused_position_restarts_it_there(true_panoramas: list[np.ndarray]) -> None:
     # After WEST (x 1.5), 1 m back west the odometry says x 0.5, and only EAST (x 5.5, y 3; 5.1 m away, beyond 3
     # standard deviations of the difference: 3 * sqrt(1 + 1) m) is recognised, clearly: a kidnapping or a wrong

@@ -4,7 +4,9 @@ The thesis localizes to a place; a pose also needs a position. A recognised plac
 measurement of the position (its node, with the place's extent as standard deviation), the odometry as
 the motion between measurements (its error growing with the distance travelled). A place beyond
 ``gate_sigmas`` of the fused position is a relocalization (a kidnapping, a wrong earlier place): the
-position restarts there. Notes and figures: docs/ima.md, "The pose within the place".
+position restarts there. The places' errors are not independent (the same view from the same spot
+errs the same way), so the variance stays at least ``floor_share`` squared of a place's. Notes and
+figures: docs/ima.md, "Departure: the pose within the place".
 """
 
 from __future__ import annotations
@@ -14,9 +16,10 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["GATE_SIGMAS", "PlacePositionFilter"]
+__all__ = ["FLOOR_SHARE", "GATE_SIGMAS", "PlacePositionFilter"]
 
 GATE_SIGMAS = 3.0  # a place further than this many standard deviations restarts the position
+FLOOR_SHARE = 0.5  # the fused standard deviation stays at least this share of a place's
 
 
 class PlacePositionFilter:
@@ -25,11 +28,13 @@ class PlacePositionFilter:
     Args:
         drift: standard deviation of the odometry's position error per metre travelled.
         gate_sigmas: a place measured further than this many standard deviations away restarts it.
+        floor_share: after a place, the standard deviation is at least this share of the place's.
     """
 
-    def __init__(self, drift: float, gate_sigmas: float = GATE_SIGMAS) -> None:
+    def __init__(self, drift: float, gate_sigmas: float = GATE_SIGMAS, floor_share: float = FLOOR_SHARE) -> None:
         self.drift = float(drift)
         self.gate_sigmas = float(gate_sigmas)
+        self.floor_share = float(floor_share)
         self.xy: NDArray[np.float64] | None = None
         self.variance = math.inf
 
@@ -62,5 +67,5 @@ class PlacePositionFilter:
             return True
         gain = self.variance / (self.variance + variance)
         self.xy = self.xy + gain * offset
-        self.variance = (1.0 - gain) * self.variance
+        self.variance = max((1.0 - gain) * self.variance, self.floor_share**2 * float(variance))
         return False
