@@ -481,6 +481,23 @@ def test_recognising_the_same_place_again_and_again_does_not_make_the_position_c
     assert min(variances) == pytest.approx(0.25) and variances[-1] == pytest.approx(0.25)
 
 
+def test_an_initial_pose_before_the_first_odometry_is_moved_only_by_the_odometry_since(
+    true_panoramas: list[np.ndarray],
+) -> None:
+    # RViz's initial pose (x 2.1 m) comes before the odometry, whose first message reads x 5 m: the motion counts
+    # from that message, so 0.6 m later the position is x 2.7 before WEST (x 1.5) is fused with it, not 7.7.
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(pose_estimate="fused"))
+    tracker.set_initial_pose(np.array([2.1, 2.0, 0.0]), np.diag([0.01, 0.01, 0.01]))
+    tracker.bank.match = lambda image: _seen({_WEST: (0.9, 2)})  # type: ignore[method-assign]
+    tracker.on_odometry(0.0, np.array([5.0, 0.0, 0.0]))
+    tracker.on_odometry(1.0, np.array([5.6, 0.0, 0.0]))
+    estimate = tracker.on_image(1.0, _BLANK)
+    predicted = 0.01 + (0.05 * 0.6) ** 2
+    gain = predicted / (predicted + 1.0)  # WEST's variance: half the 2 m spacing, squared
+    assert estimate is not None
+    assert estimate.pose[:2] == pytest.approx([2.7 + gain * (1.5 - 2.7), 2.0])
+
+
 def test_a_place_far_beyond_the_fused_position_restarts_it_there(true_panoramas: list[np.ndarray]) -> None:
     # After WEST (x 1.5), 1 m back west the odometry says x 0.5, and only EAST (x 5.5, y 3; 5.1 m away, beyond 3
     # standard deviations of the difference: 3 * sqrt(1 + 1) m) is recognised, clearly: a kidnapping or a wrong

@@ -200,6 +200,7 @@ class ImaTopoLocalizer:
             # The first odometry defines where the motion since start is measured from.
             self._reset_odom = self._odom.copy()
             self._anchor_odom = self._odom.copy()
+            self._position_odom = self._odom.copy()
 
     def on_image(self, stamp: float, image: ArrayLike) -> Estimate | None:
         """Run Code 3.1 when the robot moved enough since the last run; otherwise return None."""
