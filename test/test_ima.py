@@ -498,6 +498,27 @@ def test_an_initial_pose_before_the_first_odometry_is_moved_only_by_the_odometry
     assert estimate.pose[:2] == pytest.approx([2.7 + gain * (1.5 - 2.7), 2.0])
 
 
+@pytest.mark.parametrize("min_places", [1, 3])
+def test_localized_waits_for_places_that_agree_since_the_position_restarted(true_panoramas: list[np.ndarray],
+                                                                           min_places: int) -> None:
+    # From the start, WEST, then MIDDLE 2 m on and EAST 2 m further (each where the odometry carries the fused
+    # position), all matched clearly. One place may have been recognised from afar; three that agree through the
+    # odometry make the position worth standing behind. Then EAST again, from far off (a kidnapping's first
+    # place): the position restarts and LOCALIZED waits again. An initial pose needs no places.
+    settings = ImaTrackerSettings(localized_min_places=min_places)
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), settings)
+    estimates = _drive_east(tracker, [(0.0, _seen({_WEST: (0.9, 0)})), (2.0, _seen({_MIDDLE: (0.9, 0)})),
+                                      (4.0, _seen({_EAST: (0.9, 0)})), (-4.0, _seen({_EAST: (0.9, 0)}))])
+    assert [e.details["places_since_restart"] for e in estimates] == [1, 2, 3, 1]
+    assert estimates[3].details["position_restarted"]
+    localized = [e.status is LocalizerStatus.LOCALIZED for e in estimates]
+    assert localized == ([True] * 4 if min_places == 1 else [False, False, True, False])
+    given = ImaTopoLocalizer(_topomap(true_panoramas), settings)
+    given.set_initial_pose(np.array([1.5, 2.0, 0.0]), np.diag([0.01, 0.01, 0.01]))
+    (first,) = _drive_east(given, [(0.0, _seen({_WEST: (0.9, 0)}))])
+    assert first.status is LocalizerStatus.LOCALIZED
+
+
 def test_a_place_far_beyond_the_fused_position_restarts_it_there(true_panoramas: list[np.ndarray]) -> None:
     # After WEST (x 1.5), 1 m back west the odometry says x 0.5, and only EAST (x 5.5, y 3; 5.1 m away, beyond 3
     # standard deviations of the difference: 3 * sqrt(1 + 1) m) is recognised, clearly: a kidnapping or a wrong
@@ -515,7 +536,8 @@ def test_two_places_seen_alike_are_ambiguous_until_one_is_told_apart(true_panora
     # Vision matches WEST and EAST alike at the start: either may be the place, so the state is AMBIGUOUS with
     # both among the candidates (with ambiguity_ratio 1.0, the thesis' winner alone: LOCALIZED at one of them).
     # 0.6 m on, only WEST matches: LOCALIZED there.
-    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(ambiguity_ratio=ratio))
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(ambiguity_ratio=ratio,
+                                                                           localized_min_places=1))
     tie, told = _drive_east(tracker, [(0.0, _seen({_WEST: (0.8, 0), _EAST: (0.8, 0)})), (0.6, _seen({_WEST: (0.9, 0)}))])
     places = {tuple(np.round(xy, 3)) for xy in tie.candidates[:, :2]}
     assert places == {PLACES["WEST"], PLACES["EAST"]} and tie.details["rival_activity"] == pytest.approx(0.5, abs=0.01)
@@ -526,7 +548,7 @@ def test_two_places_seen_alike_are_ambiguous_until_one_is_told_apart(true_panora
 def test_a_place_matched_below_the_heading_threshold_is_not_localized(true_panoramas: list[np.ndarray]) -> None:
     # WEST alone matches at 0.55: a destination (above eps_M 0.5), but too weak to correct the heading
     # (eps_phi 0.6), so the pose's heading is the odometry's: AMBIGUOUS. At 0.9 it is corrected: LOCALIZED.
-    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings())
+    tracker = ImaTopoLocalizer(_topomap(true_panoramas), ImaTrackerSettings(localized_min_places=1))
     weak, strong = _drive_east(tracker, [(0.0, _seen({_WEST: (0.55, 0)})), (0.6, _seen({_WEST: (0.9, 0)}))])
     assert weak.details["kind"] == "destination" and weak.details["place"] == "WEST"
     assert not weak.heading_corrected and weak.status is LocalizerStatus.AMBIGUOUS

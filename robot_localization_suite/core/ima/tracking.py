@@ -159,6 +159,8 @@ class ImaTopoLocalizer:
         self._anchor_node = -1
         self.position.reset()
         self._position_odom = self._odom.copy()
+        self._places_since_restart: set[int] = set()
+        self._position_given = False
         self.odometry.reset()
         self._heading_offset = 0.0
         self._heading_known = False
@@ -184,6 +186,7 @@ class ImaTopoLocalizer:
         if not (math.isfinite(variance) and variance > 0.0):
             variance = self._position_sigma**2
         self.position.start(pose[:2], variance)
+        self._places_since_restart, self._position_given = set(), True
         self._position_odom = self._odom.copy()
         self._heading_offset = float(angle_difference(pose[2], self._odom[2]))
         self._heading_known = True
@@ -284,8 +287,13 @@ class ImaTopoLocalizer:
             winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node])
         )
         # a place vision recognised measures the position; the virtual destination is the odometry's own guess
-        restarted = False if destination_virtual[best] else self.position.correct(self.node_xy[winner_node],
-                                                                                 self._position_sigma**2)
+        restarted = False
+        if not destination_virtual[best]:
+            restarted = self.position.correct(self.node_xy[winner_node], self._position_sigma**2)
+            if restarted:
+                self._places_since_restart, self._position_given = set(), False
+            self._places_since_restart.add(winner_node)
+        confirmed = self._position_given or len(self._places_since_restart) >= s.localized_min_places
         self.origins = Hypotheses(
             node=np.asarray(nodes, dtype=np.int64),
             xy=destination_xy,
@@ -300,8 +308,10 @@ class ImaTopoLocalizer:
         elsewhere = np.asarray(nodes) != winner_node
         rival = float(activity[elsewhere].max()) if elsewhere.any() else 0.0
         # The node stands behind a pose whose heading it could correct (eps_phi); a weaker match names a
-        # place but leaves the heading to the odometry.
-        named = corrected and not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
+        # place but leaves the heading to the odometry. One place recognised from afar puts the position up to
+        # its recognition range off: LOCALIZED also needs localized_min_places places since the last restart.
+        named = (corrected and not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
+                 and confirmed)
         return self._estimate(
             stamp,
             winner_node,
@@ -318,6 +328,7 @@ class ImaTopoLocalizer:
             rival_activity=rival,
             odometry_reset=reset,
             position_restarted=restarted,
+            places_since_restart=len(self._places_since_restart),
         )
 
     def _move_anchor(self, node: int, xy: NDArray[np.float64], virtual: bool, comparison: int) -> bool:
