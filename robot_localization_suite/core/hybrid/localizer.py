@@ -389,7 +389,7 @@ class HybridLocalizer:
         # The filter's place scores as the better of its estimate and the candidates within its support: candidates
         # (fitted poses) against candidates, so that where two places explain the scans equally the CUSUM does not
         # drift up only because a fitted pose beats the filter's mean.
-        reference = max(float(scores[0]), float(scores[1:][inside].max(initial=-math.inf)))
+        reference = self._place_score(scores[0], scores[1:], inside)
         advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
         outside = ~inside
         if outside.any():
@@ -414,6 +414,11 @@ class HybridLocalizer:
         notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction, std_xy, std_yaw)
         self._evidence, self._better_count = 0.0, 0
         return notes
+
+    @staticmethod
+    def _place_score(own: float, others: NDArray[np.float64], near: NDArray[np.bool_]) -> float:
+        """The filter's place's log-odds: the better of its estimate's ``own`` and the candidates ``near`` it."""
+        return max(float(own), float(np.nan_to_num(others[near], nan=-math.inf).max(initial=-math.inf)))
 
     def _injection_spread(self, last: Estimate) -> tuple[float, float]:
         """Position and heading spread of particles injected around a candidate: the filter's own cluster's (its
@@ -482,8 +487,7 @@ class HybridLocalizer:
         if not np.isfinite(own):
             return estimate
         elsewhere = self._elsewhere(pool, estimate.pose)
-        # the estimate's place scores as its best fitted pose, as in the recovery (_recover)
-        here = max(float(own), float(np.nan_to_num(others[~elsewhere], nan=-math.inf).max(initial=-math.inf)))
+        here = self._place_score(own, others, ~elsewhere)  # as in the recovery (_recover)
         rivals = np.flatnonzero(elsewhere & (np.nan_to_num(others, nan=-math.inf) >= here - s.ambiguity_log_odds))
         details = {**estimate.details, "estimate_log_fit": round(float(own), 3), "rivals": 0}
         if rivals.size == 0:

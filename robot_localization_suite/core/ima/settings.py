@@ -86,7 +86,7 @@ class ImaTrackerSettings(Settings):
                                     "travelled, for pose_estimate 'fused' (ours)", unit="m/m", low=0.0, high=1.0)
     localized_min_places: int = setting(3, "LOCALIZED only once this many different places were recognised "
                                         "since the position last restarted (a place far from the fused position, "
-                                        "or the start; an initial pose counts as enough); ours", low=1, high=100)
+                                        "or the start; an initial pose counts as enough) (ours)", low=1, high=100)
 
     def validate(self) -> None:
         if self.heading_threshold < self.match_threshold:
