@@ -82,6 +82,18 @@ def _fake(stamp: float, poses: np.ndarray) -> Estimate:
     return Estimate(stamp, poses[0].copy(), np.eye(3), LocalizerStatus.LOCALIZED, candidates=poses)
 
 
+def _replay_with_the_truth_as_candidate(grid_map: GridMap, run: Drive, **changes: object) -> list[tuple[int, Estimate]]:
+    """:func:`_replay` with one proposal source, answering each scan with its true pose (``wait_for_workers``)."""
+
+    def truth(scan: Scan) -> Estimate:
+        return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
+
+    settings = _settings(Path("unused"), wait_for_workers=True, **changes)
+    hybrid = HybridLocalizer(settings, sources=[ProposalSource("truth", truth)])
+    hybrid.set_map(grid_map)
+    return _replay(hybrid, run)
+
+
 # -- settings ---------------------------------------------------------------------------------------
 def test_the_methods_parameters_are_nested_under_their_prefix_with_the_hybrids_defaults() -> None:
     names = {p.name: p for p in parameters(HybridSettings)}
@@ -192,19 +204,55 @@ def test_a_candidate_is_the_best_guess_only_where_the_map_vouches_for_it(office:
     kidnap = 60
     run = drive(office, steps=70, seed=6, kidnap_step=kidnap, kidnap_index=9)
 
-    def truth(scan: Scan) -> Estimate:
-        return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
-
-    settings = _settings(Path("unused"), switch_min_explained=min_explained, wait_for_workers=True)
-    hybrid = HybridLocalizer(settings, sources=[ProposalSource("truth", truth)])
-    hybrid.set_map(office)
-    outputs = _replay(hybrid, run)
+    outputs = _replay_with_the_truth_as_candidate(office, run, switch_min_explained=min_explained)
     k, first = next((k, estimate) for k, estimate in outputs if k >= kidnap)
     assert first.status is not LocalizerStatus.LOCALIZED
     if min_explained > 0.0:
         assert "pose_from" not in first.details and pose_error(first.pose, run.truth[k])[0] > 3.0
     else:
         assert first.details["pose_from"] == "candidate" and pose_error(first.pose, run.truth[k])[0] < 0.1
+
+
+def _carried_while_standing(grid_map: GridMap, seed: int) -> tuple[Drive, int, int]:
+    """Drive 4 m, stand 2 s where it stopped, be carried to waypoint 9 (a place no scan confuses) and stand 2 s
+    there; the odometry sees no motion from the stop on. Returns the run, the first standing step and the
+    carried step."""
+    moving = drive(grid_map, steps=41, seed=seed)
+    there = drive(grid_map, steps=1, seed=seed, start_index=9).truth[0]
+    stop, carried = len(moving.stamps), len(moving.stamps) + 20
+    truth = np.vstack([moving.truth, np.repeat(moving.truth[-1:], 20, axis=0), np.repeat(there[None, :], 20, axis=0)])
+    odometry = np.vstack([moving.odometry, np.repeat(moving.odometry[-1:], 40, axis=0)])
+    stamps = 0.1 * np.arange(len(truth))
+    angles = moving.scans[0].angles
+    rng = np.random.default_rng(seed)
+    ranges = RayCaster(grid_map, max_range=10.0).cast(truth[stop:], angles).astype(np.float64)
+    ranges = np.where(np.isfinite(ranges), ranges + 0.02 * rng.standard_normal(ranges.shape), np.inf)
+    ranges[ranges >= 10.0] = np.inf
+    scans = [replace(scan, stamp=float(stamps[k])) for k, scan in enumerate(moving.scans)]
+    scans += [Scan(float(stamps[stop + k]), angles.copy(), ranges[k], 0.05, 10.0) for k in range(len(ranges))]
+    return Drive(stamps, truth, odometry, scans), stop, carried
+
+
+@pytest.mark.parametrize("watch", [True, False])
+def test_a_robot_carried_away_while_standing_is_found_before_it_moves_again(office: GridMap, watch: bool) -> None:
+    """No update is due while the robot stands (nav2's rule): standing where it is, nothing is published. Carried
+    away while standing, a candidate explains the next scan far better than the estimate, and with watch_standing
+    the filter updates without motion: the first output is the true place, one scan after the source has seen
+    the new place. Without it the node stays silent, on the old place, until the robot moves."""
+    run, stop, carried = _carried_while_standing(office, seed=6)
+    assert pose_error(run.truth[carried - 1], run.truth[carried])[0] > 3.0
+
+    outputs = _replay_with_the_truth_as_candidate(office, run, watch_standing=watch)
+    assert not [k for k, _ in outputs if stop < k < carried]  # standing at the right place: no update
+    after = [(k, pose_error(estimate.pose, run.truth[k])) for k, estimate in outputs if k >= carried]
+    if not watch:
+        assert not after
+        return
+    # the source answers about the carried scan in its worker; the next scan sees that answer and updates
+    assert after and after[0][0] <= carried + 1, after
+    assert next(estimate for k, estimate in outputs if k >= carried).details["update_without_motion"]
+    assert all(dxy < 0.3 and dtheta < 0.15 for _, (dxy, dtheta) in after), after
+    assert after[-1][0] < len(run.stamps) - 5  # the filter followed: the alarm stops, standing is quiet again
 
 
 # -- twin places --------------------------------------------------------------------------------------

@@ -11,7 +11,8 @@ it weighs its particles; the proposals are used
 * to start: at start and on :meth:`reinitialize` the filter is drawn around the best candidates
   instead of uniformly over the map;
 * to recover: a candidate outside the filter's support that has explained the scans clearly
-  better than the estimate (a CUSUM of its log-odds) gets particles injected around it;
+  better than the estimate (a CUSUM of its log-odds) gets particles injected around it; between
+  updates (the robot standing) one scan that clearly better makes the filter update on it;
 * as the ambiguity signal: a candidate elsewhere that explains the scan as well as the estimate
   makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
 
@@ -225,7 +226,13 @@ class HybridLocalizer:
         gate = self.mcl.odometry
         odom = gate.at(scan.stamp)
         due = gate.forced if odom is None else gate.due(odom)
+        standing = (not due and self.settings.watch_standing and not self._seed_pending
+                    and self.last_estimate is not None)
         notes: dict[str, Any] = {}
+        if standing and self._standing_alarm(scan, odom):
+            self.mcl.request_nomotion_update()  # carried away while standing: update on this scan
+            due, standing = True, False
+            notes["update_without_motion"] = True
         pool: NDArray[np.float64] = np.zeros((0, 3))
         self._pil_answered = False
         if due:
@@ -256,6 +263,8 @@ class HybridLocalizer:
             estimate = self._integrity(scan, verdict)
         if due:
             self._ask_in_background(scan, estimate)
+        elif standing:
+            self._ask_while_standing(scan)
         if self.monitor is not None and self.settings.wait_for_workers:
             self.monitor.submit(scan)
         if estimate is None:
@@ -317,7 +326,7 @@ class HybridLocalizer:
                     found.extend(self.runner.ask(source.name, scan, background=False))
         found.extend(self._waiting)
         self._waiting = []
-        for proposal in found:
+        for proposal in sorted(found, key=lambda proposal: proposal.stamp):  # a source's newest answer is kept
             self._latest[proposal.source] = (proposal.candidates[: s.proposals_scored],
                                              self.mcl.odometry.at(proposal.stamp))
         poses = []
@@ -352,6 +361,26 @@ class HybridLocalizer:
             elif not localized or (s.ir_every_updates > 0 and self._updates % s.ir_every_updates == 0):
                 self.runner.ask(source.name, scan)
 
+    def _ask_while_standing(self, scan: Scan) -> None:
+        """No update due (the robot stands): the sources that answer in the update (PIL, cheap) are asked about the
+        scan in their worker all the same, so that :meth:`_standing_alarm` weighs fresh candidates."""
+        for source in self.sources:
+            if not source.background and not self.runner.in_flight(source.name):
+                self.runner.ask(source.name, scan, background=True)
+
+    def _standing_alarm(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
+        """Whether a scan with no update due (the robot stands, or has not moved ``mcl.update_min_d`` since the last
+        update) shows a kidnapping: the best candidate outside the filter's support explains this one scan
+        ``better_log_odds`` better than the filter's place. Such scans are not summed (a standing robot's repeat one
+        measurement, and nav2 does not update on them): the slow evidence of a look-alike place stays the updates'
+        (:meth:`_recover`). The filter then updates on this scan without motion, and the recovery runs as at any
+        update."""
+        pool = self._proposals(scan, odom, in_update=False)
+        if len(pool) == 0:
+            return False
+        found = self._outside_advantage(scan, pool, self.mcl.scan_fit(pool, scan), odom, ())
+        return found is not None and found[0] >= self.settings.better_log_odds
+
     def _seed(self, pool: NDArray[np.float64], fits: NDArray[np.float64]) -> None:
         """Start the filter around the ``seed_candidates`` best-fitting candidates, as many particles each."""
         s = self.settings
@@ -376,28 +405,12 @@ class HybridLocalizer:
         last = self.mcl.last_estimate
         if last is None or len(self.mcl.particles) == 0:
             return {}
-        delta = self.mcl.odometry_since_update(odom)
-        predicted = compose(last.pose, delta)
-        own = self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))
-        scores = np.nan_to_num(np.concatenate([own, self._log_odds(fits)]), nan=-math.inf)
-        if self.camera is not None:  # each image once in the running sum
-            scores = scores + self._camera_evidence(np.vstack([predicted[None, :], pool]), odom,
-                                                    self.camera.take_new(scan.stamp))
-        # in the particles' frame (before this update's motion)
-        back = compose(pool, inverse(delta))
-        inside = self._support(back) >= s.support_weight
-        # The filter's place scores as the better of its estimate and the candidates within its support: candidates
-        # (fitted poses) against candidates, so that where two places explain the scans equally the CUSUM does not
-        # drift up only because a fitted pose beats the filter's mean.
-        reference = self._place_score(scores[0], scores[1:], inside)
-        advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
-        outside = ~inside
-        if outside.any():
-            outside[outside] = self._explained(scan, pool[outside])
-        if not outside.any() or not np.isfinite(advantage[outside]).any():
+        images = self.camera.take_new(scan.stamp) if self.camera is not None else ()  # each once in the sum
+        found = self._outside_advantage(scan, pool, fits, odom, images)
+        if found is None:
             self._evidence, self._better_count = 0.0, 0
             return {"switch_evidence": 0.0}
-        step = float(advantage[outside].max())
+        step, advantage, outside, back = found
         self._evidence = max(0.0, self._evidence + step)
         self._better_count = self._better_count + 1 if step > 0.0 else 0
         notes: dict[str, Any] = {"best_outside_log_odds": round(step, 3), "switch_evidence": round(self._evidence, 3)}
@@ -414,6 +427,35 @@ class HybridLocalizer:
         notes["injected"] = self.mcl.inject_around(back[chosen], share, s.inject_fraction, std_xy, std_yaw)
         self._evidence, self._better_count = 0.0, 0
         return notes
+
+    def _outside_advantage(self, scan: Scan, pool: NDArray[np.float64], fits: NDArray[np.float64],
+                           odom: NDArray[np.float64] | None, images: Sequence[SeenImage]
+                           ) -> tuple[float, NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]] | None:
+        """The recovery's step on this scan (and ``images``): the best log-odds of a candidate outside the filter's
+        support that the map vouches for over the filter's place, with every candidate's advantage, which ones are
+        such, and the candidates in the particles' frame (before this update's motion); None without one."""
+        s, last = self.settings, self.mcl.last_estimate
+        if last is None or len(self.mcl.particles) == 0:
+            return None
+        delta = self.mcl.odometry_since_update(odom)
+        predicted = compose(last.pose, delta)
+        own = self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))
+        scores = np.nan_to_num(np.concatenate([own, self._log_odds(fits)]), nan=-math.inf)
+        if images:
+            scores = scores + self._camera_evidence(np.vstack([predicted[None, :], pool]), odom, images)
+        back = compose(pool, inverse(delta))
+        inside = self._support(back) >= s.support_weight
+        # The filter's place scores as the better of its estimate and the candidates within its support: candidates
+        # (fitted poses) against candidates, so that where two places explain the scans equally the CUSUM does not
+        # drift up only because a fitted pose beats the filter's mean.
+        reference = self._place_score(scores[0], scores[1:], inside)
+        advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
+        outside = ~inside
+        if outside.any():
+            outside[outside] = self._explained(scan, pool[outside])
+        if not outside.any() or not np.isfinite(advantage[outside]).any():
+            return None
+        return float(advantage[outside].max()), advantage, outside, back
 
     @staticmethod
     def _place_score(own: float, others: NDArray[np.float64], near: NDArray[np.bool_]) -> float:

@@ -73,6 +73,12 @@ class HybridSettings(Settings):
     better_updates: int = setting(
         2, "unless the filter is LOST or INITIALIZING, the candidate must also have been ahead of the estimate at "
         "this many consecutive updates", low=1, high=1000)
+    watch_standing: bool = setting(
+        True, "while no filter update is due (the robot stands, or has moved less than mcl.update_min_d / "
+        "update_min_a), PIL is still asked about every scan in its worker, and a candidate outside the filter's support "
+        "that explains one such scan better_log_odds better than the filter's place makes the filter update on it "
+        "without motion (a robot carried away while standing); false: nothing is weighed until the robot moves, as "
+        "nav2 (ours)")
     support_distance: float = setting(
         0.5, "a candidate is inside the filter's support when particles within this distance ...", unit="m",
         low=0.0, low_open=True, high=100.0)
