@@ -82,11 +82,16 @@ def _fake(stamp: float, poses: np.ndarray) -> Estimate:
     return Estimate(stamp, poses[0].copy(), np.eye(3), LocalizerStatus.LOCALIZED, candidates=poses)
 
 
-def _replay_with_the_truth_as_candidate(grid_map: GridMap, run: Drive, **changes: object) -> list[tuple[int, Estimate]]:
-    """:func:`_replay` with one proposal source, answering each scan with its true pose (``wait_for_workers``)."""
+def _replay_with_the_truth_as_candidate(grid_map: GridMap, run: Drive, asked: list[int] | None = None,
+                                        **changes: object) -> list[tuple[int, Estimate]]:
+    """:func:`_replay` with one proposal source, answering each scan with its true pose (``wait_for_workers``); the
+    step of every scan it is asked about is appended to ``asked``."""
 
     def truth(scan: Scan) -> Estimate:
-        return _fake(scan.stamp, run.truth[np.searchsorted(run.stamps, scan.stamp)][None, :])
+        step = int(np.searchsorted(run.stamps, scan.stamp))
+        if asked is not None:
+            asked.append(step)
+        return _fake(scan.stamp, run.truth[step][None, :])
 
     settings = _settings(Path("unused"), wait_for_workers=True, **changes)
     hybrid = HybridLocalizer(settings, sources=[ProposalSource("truth", truth)])
@@ -238,12 +243,15 @@ def test_a_robot_carried_away_while_standing_is_found_before_it_moves_again(offi
     """No update is due while the robot stands (nav2's rule): standing where it is, nothing is published. Carried
     away while standing, a candidate explains the next scan far better than the estimate, and with watch_standing
     the filter updates without motion: the first output is the true place, one scan after the source has seen
-    the new place. Without it the node stays silent, on the old place, until the robot moves."""
+    the new place. Without it the node stays silent, on the old place, until the robot moves. While the scans
+    agree with the filter, no source is asked between updates either way."""
     run, stop, carried = _carried_while_standing(office, seed=6)
     assert pose_error(run.truth[carried - 1], run.truth[carried])[0] > 3.0
 
-    outputs = _replay_with_the_truth_as_candidate(office, run, watch_standing=watch)
+    asked: list[int] = []
+    outputs = _replay_with_the_truth_as_candidate(office, run, asked, watch_standing=watch)
     assert not [k for k, _ in outputs if stop < k < carried]  # standing at the right place: no update
+    assert not [k for k in asked if stop < k < carried]  # ... and, the scans agreeing with the filter, no query
     after = [(k, pose_error(estimate.pose, run.truth[k])) for k, estimate in outputs if k >= carried]
     if not watch:
         assert not after

@@ -227,7 +227,7 @@ class HybridLocalizer:
         odom = gate.at(scan.stamp)
         due = gate.forced if odom is None else gate.due(odom)
         standing = (not due and self.settings.watch_standing and not self._seed_pending
-                    and self.last_estimate is not None)
+                    and self.last_estimate is not None and self._watched(scan, odom))
         notes: dict[str, Any] = {}
         if standing and self._standing_alarm(scan, odom):
             self.mcl.request_nomotion_update()  # carried away while standing: update on this scan
@@ -361,9 +361,17 @@ class HybridLocalizer:
             elif not localized or (s.ir_every_updates > 0 and self._updates % s.ir_every_updates == 0):
                 self.runner.ask(source.name, scan)
 
+    def _watched(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
+        """Whether a scan with no update due is looked at: the filter is not LOCALIZED, or the scan contradicts it
+        (its fit at the filter's pose collapsed, :meth:`~..mcl.localizer.MonteCarloLocalizer.contradicts`). While
+        the filter tracks and the scans agree with it, no source is asked between updates (PIL's cost stays that
+        of the updates)."""
+        last = self.mcl.last_estimate
+        return last is None or last.status is not LocalizerStatus.LOCALIZED or self.mcl.contradicts(scan, odom)
+
     def _ask_while_standing(self, scan: Scan) -> None:
-        """No update due (the robot stands): the sources that answer in the update (PIL, cheap) are asked about the
-        scan in their worker all the same, so that :meth:`_standing_alarm` weighs fresh candidates."""
+        """A watched scan with no update due (:meth:`_watched`): the sources that answer in the update (PIL, cheap)
+        are asked about it in their worker, so that :meth:`_standing_alarm` weighs fresh candidates."""
         for source in self.sources:
             if not source.background and not self.runner.in_flight(source.name):
                 self.runner.ask(source.name, scan, background=True)

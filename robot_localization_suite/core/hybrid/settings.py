@@ -75,7 +75,8 @@ class HybridSettings(Settings):
         "this many consecutive updates", low=1, high=1000)
     watch_standing: bool = setting(
         True, "while no filter update is due (the robot stands, or has moved less than mcl.update_min_d / "
-        "update_min_a), PIL is still asked about every scan in its worker, and a candidate outside the filter's support "
+        "update_min_a), a scan that contradicts the filter (its fit below mcl.lost_fit_ratio of the average) or comes "
+        "while it is not LOCALIZED is still given to PIL in its worker, and a candidate outside the filter's support "
         "that explains one such scan better_log_odds better than the filter's place makes the filter update on it "
         "without motion (a robot carried away while standing); false: nothing is weighed until the robot moves, as "
         "nav2 (ours)")

@@ -242,12 +242,20 @@ class MonteCarloLocalizer:
         gate.mark_updated(odom if moved else gate.reference)
         return self._update(scan.stamp, beams)
 
+    def contradicts(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
+        """Whether ``scan``, at odometry ``odom`` (no update due), contradicts the filter: its fit at the last
+        LOCALIZED pose moved by the odometry falls below ``lost_fit_ratio`` of the slow average, or the last update
+        found the fit collapsed (docs/mcl.md, "Standing still"); ``standstill_check`` makes such a scan update."""
+        beams = self._select_beams(scan) if self._sensor is not None else None
+        return beams is not None and self._contradicts(beams, odom)
+
     def _contradicted(self, beams: _Beams, odom: NDArray[np.float64] | None) -> bool:
-        """Whether a scan without motion enough for an update contradicts the filter: its fit at the last
-        LOCALIZED pose falls below ``lost_fit_ratio`` of the slow average, or the last update found the fit
-        collapsed. The robot was carried away while standing (docs/mcl.md, "Standing still"); it updates now."""
+        """:meth:`contradicts`, with ``standstill_check``: the robot was carried away while standing; it updates."""
+        return self.settings.standstill_check and self._contradicts(beams, odom)
+
+    def _contradicts(self, beams: _Beams, odom: NDArray[np.float64] | None) -> bool:
         last, slow = self.last_estimate, self._scan_fit_slow.value
-        if not self.settings.standstill_check or last is None or slow <= 0.0:
+        if last is None or slow <= 0.0:
             return False
         if self.fit_dropped:
             return True
