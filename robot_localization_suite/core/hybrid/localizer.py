@@ -12,7 +12,8 @@ it weighs its particles; the proposals are used
   instead of uniformly over the map;
 * to recover: a candidate outside the filter's support that has explained the scans clearly
   better than the estimate (a CUSUM of its log-odds) gets particles injected around it; between
-  updates (the robot standing) one scan that clearly better makes the filter update on it;
+  updates (the robot standing), one scan a candidate explains that much better makes the filter
+  update on it;
 * as the ambiguity signal: a candidate elsewhere that explains the scan as well as the estimate
   makes the state AMBIGUOUS (never LOCALIZED), the places listed as candidates.
 
