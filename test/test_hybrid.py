@@ -285,14 +285,12 @@ def _corridor_scan(grid_map: GridMap, pose: np.ndarray, stamp: float, range_max:
     return Scan(stamp, angles, ranges, 0.05, range_max)
 
 
-def _twin_kidnapping(hybrid: HybridLocalizer, corridor: GridMap, range_m: float,
-                     camera: CameraRenderer | None = None) -> list[tuple[np.ndarray, Estimate]]:
-    """Tracked from beside the cabinet facing east, carried to x = 6.6 facing west (odometry blind to it), then
-    driving west past the cabinet: the (truth, estimate) of every update after the kidnapping. With ``camera``,
-    the image at each step goes in before its scan."""
-    rng = np.random.default_rng(7)
-    before = [np.array([1.2 + 0.1 * k, 1.5, 0.0]) for k in range(10)]
-    after = [np.array([6.6 - 0.1 * k, 1.5, math.pi]) for k in range(50)]
+def _carried_unseen(hybrid: HybridLocalizer, corridor: GridMap, range_m: float, before: list[np.ndarray],
+                    after: list[np.ndarray], camera: CameraRenderer | None, seed: int) -> list[tuple[np.ndarray, Estimate]]:
+    """Tracked along ``before``, carried to ``after[0]`` (odometry blind to it), then along ``after``, with an update
+    at every scan (the tests count updates): the (truth, estimate) of every update from the carry on. With
+    ``camera``, the image at each step goes in before its scan."""
+    rng = np.random.default_rng(seed)
     truth = before + after
     odometry = [np.zeros(3)]
     for k in range(1, len(truth)):
@@ -301,7 +299,7 @@ def _twin_kidnapping(hybrid: HybridLocalizer, corridor: GridMap, range_m: float,
     hybrid.set_initial_pose(truth[0], TIGHT)
     seen: list[tuple[np.ndarray, Estimate]] = []
     for k, pose in enumerate(truth):
-        hybrid.request_nomotion_update()  # an update at every scan: the test counts updates
+        hybrid.request_nomotion_update()
         hybrid.on_odometry(float(k), odometry[k])
         if camera is not None:
             hybrid.on_image(float(k), camera.render(pose))
@@ -311,6 +309,15 @@ def _twin_kidnapping(hybrid: HybridLocalizer, corridor: GridMap, range_m: float,
             seen.append((pose, estimate))
     hybrid.close()
     return seen
+
+
+def _twin_kidnapping(hybrid: HybridLocalizer, corridor: GridMap, range_m: float,
+                     camera: CameraRenderer | None = None) -> list[tuple[np.ndarray, Estimate]]:
+    """Tracked from beside the cabinet facing east, carried to x = 6.6 facing west, then driving west past the
+    cabinet (:func:`_carried_unseen`)."""
+    before = [np.array([1.2 + 0.1 * k, 1.5, 0.0]) for k in range(10)]
+    after = [np.array([6.6 - 0.1 * k, 1.5, math.pi]) for k in range(50)]
+    return _carried_unseen(hybrid, corridor, range_m, before, after, camera, seed=7)
 
 
 def test_a_twin_kidnapping_is_ambiguous_with_the_truth_among_the_candidates_then_localized(cache: Path) -> None:
@@ -450,6 +457,39 @@ def test_with_a_camera_a_twin_kidnapping_is_resolved_while_the_scans_still_canno
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in localized)
     assert all(pose_error(e.pose, pose)[0] < 0.3 for pose, e in seen if pose[0] < 3.0)
     assert seen[-1][1].details["camera_images"] == len(seen) + 10 and seen[-1][1].details["camera_image_errors"] == 0
+
+
+def _turned_unseen_at_the_centre(hybrid: HybridLocalizer, corridor: GridMap, camera: CameraRenderer | None,
+                                 range_m: float) -> list[tuple[np.ndarray, Estimate]]:
+    """Driving west from x = 6.6 to the corridor's centre, turned there by half a turn the odometry does not see
+    (the twin of the pose: the same scans), then driving east to x = 6.6 while the odometry says west: no scan
+    ever tells the two apart (the cabinet stays out of range) (:func:`_carried_unseen`)."""
+    before = [np.array([6.6 - 0.1 * k, 1.5, math.pi]) for k in range(7)]  # to x = 6.0, the centre
+    after = [np.array([6.0 + 0.1 * k, 1.5, 0.0]) for k in range(7)]
+    return _carried_unseen(hybrid, corridor, range_m, before, after, camera, seed=3)
+
+
+@pytest.mark.parametrize("with_camera", [False, True])
+def test_the_camera_makes_the_truth_the_best_guess_as_soon_as_its_images_tell_the_twins_apart(
+        cache: Path, corridor_camera: tuple[CameraRenderer, TopologicalMap], with_camera: bool) -> None:
+    """A twin kidnapping no scan can reveal: without the camera the pose stays on the twin the filter tracks (never
+    LOCALIZED); with it, the truth is the pose from the first update whose window holds only images taken after the
+    turn (the one at the turn still holds the image before it), before the filter has been injected there."""
+    camera, topomap = corridor_camera
+    corridor, range_m = _twin_corridor(), 3.5
+    hybrid = HybridLocalizer(_settings(cache, max_range=range_m, wait_for_workers=True, camera_window=1.0),
+                             topomap=topomap if with_camera else None)
+    hybrid.set_map(corridor)
+    seen = _turned_unseen_at_the_centre(hybrid, corridor, camera if with_camera else None, range_m)
+    right = [pose_error(e.pose, pose)[0] < 0.3 and pose_error(e.pose, pose)[1] < 0.3 for pose, e in seen]
+    if not with_camera:
+        assert not any(right) and all(e.status is not LocalizerStatus.LOCALIZED for _, e in seen)
+        return
+    assert all(right[1:]), [(e.status.value, e.details.get("pose_from")) for _, e in seen]
+    first = seen[1][1]
+    assert first.status is LocalizerStatus.AMBIGUOUS and first.details.get("pose_from") == "camera"
+    assert not any(e.details.get("injected") for _, e in seen[:2])  # the pose led; the filter follows after
+    assert all(e.status is not LocalizerStatus.LOCALIZED for (_, e), ok in zip(seen, right, strict=True) if not ok)
 
 
 def _held_source(run: Drive, release: threading.Event, finished: threading.Event,

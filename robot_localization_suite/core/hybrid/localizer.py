@@ -19,8 +19,9 @@ it weighs its particles; the proposals are used
 
 With a camera and a topological map of the places it should tell apart (``camera_topomap``), each
 image is one more measurement (:mod:`.camera_cue`, IMA of thesis 003, matched in a worker thread): it
-weighs the particles, adds to the recovery's evidence, and counts in the AMBIGUOUS verdict, so
-look-alike places the laser cannot tell apart are told apart by what they look like.
+weighs the particles, adds to the recovery's evidence, and counts in the AMBIGUOUS verdict (where it makes
+the best guess between places the laser cannot tell apart), so look-alike places are told apart by what they
+look like.
 
 Notes (why each mechanism, measured figures): docs/hybrid.md.
 """
@@ -530,10 +531,11 @@ class HybridLocalizer:
         if len(pool) == 0:
             return estimate
         poses = np.vstack([estimate.pose[None, :], pool])
-        scores = self._log_odds(self.mcl.scan_fit(poses, scan))
+        laser = self._log_odds(self.mcl.scan_fit(poses, scan))
+        scores = laser
         if self.camera is not None:
-            scores = scores + self._camera_evidence(poses, self.mcl.odometry.at(scan.stamp),
-                                                    self.camera.window(scan.stamp))
+            scores = laser + self._camera_evidence(poses, self.mcl.odometry.at(scan.stamp),
+                                                   self.camera.window(scan.stamp))
         own, others = scores[0], scores[1:]
         if not np.isfinite(own):
             return estimate
@@ -553,18 +555,37 @@ class HybridLocalizer:
         weights = np.exp(log_weights - log_weights.max())
         details["rivals"] = len(places)
         pose, covariance = estimate.pose, estimate.covariance
+        # The best guess is the rival (listed first, with a candidate's spread; the filter follows once the recovery's
+        # evidence has held for better_updates updates) when the scan contradicts the filter (its fit dropped as at a
+        # kidnapping) and the rival explains it as clearly better as a recovery needs, where the map vouches for it;
+        # or when the camera tells it apart from a look-alike of the filter's place (_camera_breaks_tie).
         if (self.mcl.fit_dropped and others[places[0]] - here >= s.better_log_odds
                 and self._explained(scan, pool[places[:1]])[0]):
-            # The best guess is the rival: the scan contradicts the filter (its fit dropped as at a kidnapping) and the
-            # rival explains it as clearly better as a recovery needs, where the map vouches for it. The filter follows
-            # once the advantage has held for better_updates updates. Listed first, with a candidate's spread.
+            details["pose_from"] = "candidate"
+        elif self._camera_breaks_tie(scan, laser, scores, places[0], elsewhere, pool):
+            details["pose_from"] = "camera"
+        if "pose_from" in details:
             order = [1, 0, *range(2, len(poses))]
             poses, weights = poses[order], weights[order]
             pose = poses[0].copy()
             covariance = np.diag([s.proposal_std_xy**2, s.proposal_std_xy**2, s.proposal_std_yaw**2])
-            details["pose_from"] = "candidate"
         return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
+
+    def _camera_breaks_tie(self, scan: Scan, laser: NDArray[np.float64], scores: NDArray[np.float64], rival: int,
+                           elsewhere: NDArray[np.bool_], pool: NDArray[np.float64]) -> bool:
+        """Whether the verdict's best rival ``pool[rival]`` is the best guess by the camera, a look-alike the laser
+        cannot tell apart: by the laser alone (``laser``: the estimate's log-odds, then each candidate's) it is
+        within ``ambiguity_log_odds`` of the filter's place or ahead of it, the images of ``camera_window``
+        (``scores``: the laser's and theirs) put it more than ``ambiguity_log_odds`` further ahead, and the map
+        vouches for it."""
+        s = self.settings
+        if self.camera is None:
+            return False
+        laser_lead = laser[1 + rival] - self._place_score(laser[0], laser[1:], ~elsewhere)
+        lead = scores[1 + rival] - self._place_score(scores[0], scores[1:], ~elsewhere)
+        return bool(laser_lead >= -s.ambiguity_log_odds and lead - laser_lead > s.ambiguity_log_odds
+                    and self._explained(scan, pool[[rival]])[0])
 
     def _explained(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
         """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
