@@ -4,7 +4,7 @@ The thesis localizes to a place; a pose also needs a position. A recognised plac
 measurement of the position (its node, with the place's extent as standard deviation), the odometry as
 the motion between measurements (its error growing with the distance travelled). A place beyond
 ``gate_sigmas`` of the fused position is a relocalization (a kidnapping, a wrong earlier place): the
-position restarts there. The places' errors are not independent (the same view from the same spot
+position restarts there (the tracker lets only a place vision names clearly restart it). The places' errors are not independent (the same view from the same spot
 errs the same way), so the variance stays at least ``floor_share`` squared of a place's. Notes and
 figures: docs/ima.md, "Departure: the pose within the place".
 """
@@ -55,16 +55,21 @@ class PlacePositionFilter:
         self.xy = self.xy + moved
         self.variance += (self.drift * float(np.hypot(moved[0], moved[1]))) ** 2
 
+    def beyond_gate(self, place_xy: ArrayLike, variance: float) -> bool:
+        """Whether a place measured at ``place_xy`` with ``variance`` lies beyond the gate (False without a
+        position: the first place starts it)."""
+        if self.xy is None:
+            return False
+        offset = np.asarray(place_xy, dtype=np.float64).reshape(2) - self.xy
+        return float(offset @ offset) > self.gate_sigmas**2 * (self.variance + variance)
+
     def correct(self, place_xy: ArrayLike, variance: float) -> bool:
         """Fuse a place measured at ``place_xy`` with ``variance`` per axis; True if it restarted the position."""
         z = np.asarray(place_xy, dtype=np.float64).reshape(2)
-        if self.xy is None:
+        if self.xy is None or self.beyond_gate(z, variance):
             self.start(z, variance)
             return True
         offset = z - self.xy
-        if float(offset @ offset) > self.gate_sigmas**2 * (self.variance + variance):
-            self.start(z, variance)
-            return True
         gain = self.variance / (self.variance + variance)
         self.xy = self.xy + gain * offset
         self.variance = max((1.0 - gain) * self.variance, self.floor_share**2 * float(variance))

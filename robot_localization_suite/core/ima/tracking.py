@@ -286,10 +286,16 @@ class ImaTopoLocalizer:
         reset = self._move_anchor(
             winner_node, destination_xy[best], bool(destination_virtual[best]), int(place.comparison[winner_node])
         )
-        # a place vision recognised measures the position; the virtual destination is the odometry's own guess
+        elsewhere = np.asarray(nodes) != winner_node
+        rival = float(activity[elsewhere].max()) if elsewhere.any() else 0.0
+        clear = bool(activity[best] >= s.ambiguity_ratio * rival)
+        # A place vision recognised measures the position; the virtual destination is the odometry's own guess.
+        # A place beyond the gate restarts the position only when vision names it clearly (no rival place within
+        # ambiguity_ratio): a near tie is no relocalization, and that place is not fused either.
         restarted = False
-        if not destination_virtual[best]:
-            restarted = self.position.correct(self.node_xy[winner_node], self._position_sigma**2)
+        place_xy, place_variance = self.node_xy[winner_node], self._position_sigma**2
+        if not destination_virtual[best] and (clear or not self.position.beyond_gate(place_xy, place_variance)):
+            restarted = self.position.correct(place_xy, place_variance)
             if restarted:
                 self._places_since_restart, self._position_given = set(), False
             self._places_since_restart.add(winner_node)
@@ -305,13 +311,10 @@ class ImaTopoLocalizer:
         order = np.argsort(-activity, kind="stable")
         candidates = np.column_stack([destination_xy, np.where(np.isnan(destination_heading), heading, destination_heading)])
         kind = "virtual" if destination_virtual[best] else "destination"
-        elsewhere = np.asarray(nodes) != winner_node
-        rival = float(activity[elsewhere].max()) if elsewhere.any() else 0.0
         # The node stands behind a pose whose heading it could correct (eps_phi); a weaker match names a
         # place but leaves the heading to the odometry. One place recognised from afar puts the position up to
         # its recognition range off: LOCALIZED also needs localized_min_places places since the last restart.
-        named = (corrected and not destination_virtual[best] and activity[best] >= s.ambiguity_ratio * rival
-                 and confirmed)
+        named = corrected and not destination_virtual[best] and clear and confirmed
         return self._estimate(
             stamp,
             winner_node,
