@@ -562,7 +562,7 @@ class HybridLocalizer:
         if (self.mcl.fit_dropped and others[places[0]] - here >= s.better_log_odds
                 and self._explained(scan, pool[places[:1]])[0]):
             details["pose_from"] = "candidate"
-        elif self._camera_breaks_tie(scan, laser, scores, places[0], elsewhere, pool):
+        elif self._camera_breaks_tie(scan, laser, others[places[0]] - here, places[0], elsewhere, pool):
             details["pose_from"] = "camera"
         if "pose_from" in details:
             order = [1, 0, *range(2, len(poses))]
@@ -572,18 +572,17 @@ class HybridLocalizer:
         return replace(estimate, pose=pose, covariance=covariance, status=LocalizerStatus.AMBIGUOUS, candidates=poses,
                        candidate_weights=weights / weights.sum(), details=details)
 
-    def _camera_breaks_tie(self, scan: Scan, laser: NDArray[np.float64], scores: NDArray[np.float64], rival: int,
+    def _camera_breaks_tie(self, scan: Scan, laser: NDArray[np.float64], lead: float, rival: int,
                            elsewhere: NDArray[np.bool_], pool: NDArray[np.float64]) -> bool:
         """Whether the verdict's best rival ``pool[rival]`` is the best guess by the camera, a look-alike the laser
         cannot tell apart: by the laser alone (``laser``: the estimate's log-odds, then each candidate's) it is
-        within ``ambiguity_log_odds`` of the filter's place or ahead of it, the images of ``camera_window``
-        (``scores``: the laser's and theirs) put it more than ``ambiguity_log_odds`` further ahead, and the map
-        vouches for it."""
+        within ``ambiguity_log_odds`` of the filter's place or ahead of it, and the images of ``camera_window`` put
+        it more than ``ambiguity_log_odds`` further ahead (``lead``: its log-odds over the filter's place, laser
+        and images), and the map vouches for it."""
         s = self.settings
         if self.camera is None:
             return False
         laser_lead = laser[1 + rival] - self._place_score(laser[0], laser[1:], ~elsewhere)
-        lead = scores[1 + rival] - self._place_score(scores[0], scores[1:], ~elsewhere)
         return bool(laser_lead >= -s.ambiguity_log_odds and lead - laser_lead > s.ambiguity_log_odds
                     and self._explained(scan, pool[[rival]])[0])
 

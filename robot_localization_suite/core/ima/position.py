@@ -4,9 +4,10 @@ The thesis localizes to a place; a pose also needs a position. A recognised plac
 measurement of the position (its node, with the place's extent as standard deviation), the odometry as
 the motion between measurements (its error growing with the distance travelled). A place beyond
 ``gate_sigmas`` of the fused position is a relocalization (a kidnapping, a wrong earlier place): the
-position restarts there (the tracker lets only a place vision names clearly restart it). The places' errors are not independent (the same view from the same spot
-errs the same way), so the variance stays at least ``floor_share`` squared of a place's. Notes and
-figures: docs/ima.md, "Departure: the pose within the place".
+position restarts there (the tracker lets only a place vision names clearly restart it). The places'
+errors are not independent (the same view from the same spot errs the same way), so the variance stays
+at least ``floor_share`` squared of a place's. Notes and figures: docs/ima.md, "Departure: the pose
+within the place".
 """
 
 from __future__ import annotations
