@@ -109,6 +109,33 @@ def test_rmse_leaves_out_a_long_recovery_but_not_the_tracking_after_it():
     assert fields["rmse_xy_m"] == pytest.approx(0.1 * np.sqrt(71 / 121), abs=1e-3)
 
 
+def test_the_shared_rmse_measures_every_run_over_the_stretch_none_of_them_leaves_out():
+    truth, odometry = kidnapped_line(jump_at=5.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    quick, _ = old_place_until(truth, odometry, 5.0, 6.0)  # recovered after 1 s: its window is the 5 s minimum
+    quick[stamps >= 10.0 - 1e-9, 0] += 0.3  # 0.3 m off while its fresh fix settles, from 10 s to 13 s
+    quick[stamps >= 13.0 - 1e-9, 0] -= 0.2  # then 0.1 m off
+    slow, _ = old_place_until(truth, odometry, 5.0, 13.0)  # recovered after 8 s
+    slow[stamps >= 13.0 - 1e-9, 0] += 0.1
+    never = truth.poses + np.array([5.0, 0.0, 0.0])  # no fix at all
+    runs, own = {}, {}
+    for name, outputs in (("quick", quick), ("slow", slow), ("never", never)):
+        fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+        own[name] = fields["rmse_xy_m"]
+        runs[name] = metrics.RmseSample(stamps, fields["position_error_m"], fields["heading_error_rad"],
+                                        fields["rmse_excluded"])
+    # Each on its own outputs, the quick one looks worse: its own RMSE counts the settling the slow one leaves out.
+    assert own["quick"] > 1.5 * own["slow"]
+    shared = metrics.shared_rmse(runs)
+    # Both over the 50 outputs before the jump and the 71 from 13 s on; the run without a fix takes no part.
+    for name in ("quick", "slow"):
+        assert shared[name]["shared_outputs"] == 121
+        assert shared[name]["rmse_xy_m_shared"] == pytest.approx(0.1 * np.sqrt(71 / 121), abs=1e-3)
+    assert shared["never"] == {"rmse_xy_m_shared": None, "rmse_theta_rad_shared": None, "shared_outputs": 0}
+    assert metrics.shared_rmse({"slow": runs["slow"], "never": runs["never"]}) == {}
+
+
 def test_no_output_gives_nulls_not_a_crash():
     truth, odometry = kidnapped_line()
     kidnaps = metrics.detect_kidnappings(truth, odometry)

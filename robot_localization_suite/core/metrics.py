@@ -7,7 +7,8 @@ interpolated at its stamp (never across a kidnapping), *fine* within 0.2 m and
 odometry does not show. From these: time to first fix, kidnap recovery (in
 seconds, in outputs, and with the truth among the first ``CANDIDATE_K``
 candidates), correct and fine rates from the first fix on, the tracking RMSE
-leaving out each recovery, recall@k of global fixes, and IAL's containment.
+leaving out each recovery (and over the stretch no run of a bag leaves out, to
+compare methods on the same outputs), recall@k of global fixes, and IAL's containment.
 
 Everything here is numpy only; nothing knows about bags or ROS.
 
@@ -16,7 +17,7 @@ Definitions in full: docs/benchmark.md (and README ``## Benchmark``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -49,6 +50,8 @@ __all__ = [
     "fine_mask",
     "first_fix_index",
     "evaluate_outputs",
+    "RmseSample",
+    "shared_rmse",
     "status_fields",
     "timing_fields",
     "boxes_contain",
@@ -275,8 +278,10 @@ def evaluate_outputs(
     ``time_to_first_fix_s``, ``kidnap_recovery_s``, ``correct_rate``, ``fine_rate``,
     ``rmse_xy_m``, ``rmse_theta_rad``, ``kidnap_recovery_updates`` and, given
     ``candidates`` ``(N, K, 3)`` (each output's first K candidates, NaN-padded),
-    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist; and ``recovering``, per output
-    whether it lies in a kidnapping's window (from the jump to its recovery fix, at least 5 s).
+    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist; ``recovering``, per output
+    whether it lies in a kidnapping's window (from the jump to its recovery fix, at least 5 s); and
+    ``rmse_excluded``, the intervals ``[start, stop)`` of stamps the RMSE leaves out (before the first fix,
+    each kidnapping's window; everything without a fix), for :func:`shared_rmse`.
     """
     stamps = np.asarray(output_stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(output_poses, dtype=np.float64).reshape(-1, 3)
@@ -300,6 +305,7 @@ def evaluate_outputs(
     recovery_updates: list[int | None] = []
     candidate_updates: list[int | None] = []
     recovering = np.zeros(stamps.size, dtype=bool)  # from each jump to its recovery fix (>= 5 s)
+    excluded = [(-np.inf, np.inf if fix is None else float(stamps[fix]))]
     for k, jump_stamp in enumerate(kidnap_stamps):
         next_jump = kidnap_stamps[k + 1] if k + 1 < kidnap_stamps.size else np.inf
         first_after = int(np.searchsorted(stamps, jump_stamp, side="left"))
@@ -311,6 +317,7 @@ def evaluate_outputs(
             candidate_updates.append(None if found is None else found - first_after + 1)
         recovered_at = next_jump if index is None else max(stamps[index], jump_stamp + KIDNAP_EXCLUSION_S)
         recovering |= (stamps >= jump_stamp) & (stamps < recovered_at)
+        excluded.append((float(jump_stamp), float(recovered_at)))
 
     fields: dict[str, Any] = {
         "time_to_first_fix_s": time_to_first_fix,
@@ -336,7 +343,53 @@ def evaluate_outputs(
         position_error_m=dxy,
         heading_error_rad=dtheta,
         recovering=recovering,
+        rmse_excluded=excluded,
     )
+    return fields
+
+
+@dataclass(frozen=True)
+class RmseSample:
+    """One run's outputs for :func:`shared_rmse`: their stamps and errors (NaN: no truth), and the intervals
+    ``[start, stop)`` its own RMSE leaves out (``evaluate_outputs``'s ``rmse_excluded``)."""
+
+    stamps: NDArray[np.float64]
+    position_error_m: NDArray[np.float64]
+    heading_error_rad: NDArray[np.float64]
+    excluded: Sequence[tuple[float, float]]
+
+    @property
+    def fixed(self) -> bool:
+        return not any(start == -np.inf and stop == np.inf for start, stop in self.excluded)
+
+
+def shared_rmse(runs: Mapping[str, RmseSample]) -> dict[str, dict[str, Any]]:
+    """Each run's RMSE over the stretch of the bag that none of ``runs`` leaves out of its own RMSE.
+
+    A run's own ``rmse_xy_m`` leaves out its own recoveries, so a method that recovers sooner is measured over
+    more of the bag, the fresh fix after each recovery included: two methods' RMSE then compare different
+    outputs. Here every run leaves out the union of all runs' intervals (before each first fix, each kidnapping
+    until the slowest recovery). Runs that never fixed do not take part (null), so they cannot empty the
+    stretch. Fields: ``rmse_xy_m_shared``, ``rmse_theta_rad_shared``, ``shared_outputs``; empty with fewer
+    than two runs taking part.
+    """
+    taking_part = {name: run for name, run in runs.items() if run.fixed}
+    if len(taking_part) < 2:
+        return {}
+    fields: dict[str, dict[str, Any]] = {
+        name: {"rmse_xy_m_shared": None, "rmse_theta_rad_shared": None, "shared_outputs": 0} for name in runs}
+    intervals = [interval for run in taking_part.values() for interval in run.excluded]
+    for name, run in taking_part.items():
+        stamps = np.asarray(run.stamps, dtype=np.float64)
+        dxy = np.asarray(run.position_error_m, dtype=np.float64)
+        dtheta = np.asarray(run.heading_error_rad, dtype=np.float64)
+        kept = np.isfinite(dxy)
+        for start, stop in intervals:
+            kept &= ~((stamps >= start) & (stamps < stop))
+        fields[name]["shared_outputs"] = int(kept.sum())
+        if kept.any():
+            fields[name]["rmse_xy_m_shared"] = _rounded(np.sqrt(np.mean(dxy[kept] ** 2)))
+            fields[name]["rmse_theta_rad_shared"] = _rounded(np.sqrt(np.mean(dtheta[kept] ** 2)))
     return fields
 
 

@@ -75,6 +75,8 @@ class OutputScores:
         coverage: map coverage of the output's scan (NaN: unknown).
         fixed: a replay reached a fix.
         recall: global fixes, ``(F, len(RECALL_KS))``: a correct candidate among the first k.
+        localized: replays, per output: reported LOCALIZED.
+        rmse: replays, the errors and left-out intervals for ``metrics.shared_rmse``.
     """
 
     kind: str
@@ -85,6 +87,7 @@ class OutputScores:
     fixed: bool = True
     recall: NDArray[np.bool_] | None = None
     localized: NDArray[np.bool_] | None = None
+    rmse: metrics.RmseSample | None = None
 
 
 def _coverage_at(coverage: ScanCoverage | None, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -101,7 +104,9 @@ def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCover
     counted = has_truth & (np.arange(correct.size) >= (fix if fix is not None else 0))
     return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
                         _coverage_at(coverage, record.stamps), fixed=fix is not None,
-                        localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool))
+                        localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool),
+                        rmse=metrics.RmseSample(record.stamps, np.asarray(series["position_error_m"]),
+                                                np.asarray(series["heading_error_rad"]), series["rmse_excluded"]))
 
 
 def global_fix_scores(record: GlobalFixRecord, coverage: ScanCoverage | None) -> OutputScores:

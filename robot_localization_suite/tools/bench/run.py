@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from ...core import metrics
 from ...core.grid_map import GridMap
 from .coverage import CoverageCache, OutputScores, global_fix_scores, replay_scores, run_coverage_fields
 from .executor import Executor, SequentialExecutor, Task
@@ -228,6 +229,7 @@ def run_benchmark(
     coverage = CoverageCache()
     say = tqdm_write if executor.parallel else None
     outcomes = executor.run(tasks)
+    samples: dict[str, dict[str, metrics.RmseSample]] = {reference.name: {} for reference in references}
     for position in range(len(planned)):
         if not executor.parallel:  # lazily, one at a time: announce the run about to start
             print(f"rls_bench: {planned[position][0].name} / {planned[position][1].name} ({mode}) ...",
@@ -235,10 +237,15 @@ def run_benchmark(
         index, status, result, seconds = next(outcomes)
         reference, spec = planned[index]
         grid_map, map_source = maps[reference.name]
-        summary[reference.name][spec.name], _ = finish_replay(
+        summary[reference.name][spec.name], scores = finish_replay(
             reference, spec, grid_map, map_source, status, result, seconds, mode=mode, coverage=coverage,
             plot_dir=out / "plots" / reference.name if plots else None,
             tum_dir=Path(export_tum) / mode / reference.name if export_tum is not None else None, say=say)
+        if scores is not None and scores.rmse is not None:
+            samples[reference.name][spec.name] = scores.rmse
+    for bag, runs in samples.items():  # every run of a bag over the same outputs (docs/benchmark.md)
+        for name, shared in metrics.shared_rmse(runs).items():
+            summary[bag][name].update(shared)
     write_summary(out, summary, title=f"rls_bench ({mode} mode)")
     if any(spec.sweep for spec in specs):
         from .sweeps import write_sweep

@@ -68,7 +68,7 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
                     "kidnap_candidate_recovery_updates", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
             fields[key] = evaluation[key]
         series = {key: evaluation[key] for key in ("correct", "fine", "position_error_m", "heading_error_rad",
-                                                   "recovering")}
+                                                   "recovering", "rmse_excluded")}
         fields.update(metrics.status_fields(record.statuses, evaluation["correct"],
                                             evaluation["recovering"] if reference.kidnap_indices.size else None))
         if reference.map_change_stamps.size or reference.reinitialize_stamps.size:

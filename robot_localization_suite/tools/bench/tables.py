@@ -54,6 +54,7 @@ _REPLAY_COLUMNS = (
     ("kidnap_candidate_recovery_updates", f"truth in top {metrics.CANDIDATE_K} [updates]"),
     ("rmse_xy_m", "RMSE xy [m]"),
     ("rmse_theta_rad", "RMSE θ [rad]"),
+    ("rmse_xy_m_shared", "RMSE xy, shared outputs [m]"),
     ("update_ms_median", "update median [ms]"),
     ("update_ms_p95", "update p95 [ms]"),
     ("peak_rss_mb", "peak RSS [MB]"),
@@ -133,7 +134,8 @@ def write_summary(out_dir: Path, summary: Mapping[str, Any], *, title: str) -> N
         explanation = (f"A fix is a correct output followed by {metrics.FIX_FOLLOWERS} more. Rates and RMSE count "
                        f"outputs from the first fix on; RMSE (the tracking error) leaves out each kidnapping's "
                        f"recovery, from the jump to its recovery fix (at least {metrics.KIDNAP_EXCLUSION_S:.0f} s; "
-                       "to the next kidnapping if never recovered).")
+                       "to the next kidnapping if never recovered); the shared RMSE counts only the outputs "
+                       "that no run on the bag leaves out, so the runs compare over the same stretch.")
     text = [f"# {title}", "", summary_table(summary), "",
             f"{criteria} {explanation} Definitions: README, section Benchmark.", ""]
     (out_dir / "summary.md").write_text("\n".join(text))
