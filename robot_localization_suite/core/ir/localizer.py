@@ -67,6 +67,8 @@ class IRLocalizer:
         self._score_average = float("nan")
         self._updates_since_check = 0
         self._fix_pose: NDArray[np.float64] | None = None
+        # the places elsewhere that the last global check found to fit as well, and the odometry then
+        self._lookalikes: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
 
     @property
     def initialized(self) -> bool:
@@ -120,7 +122,7 @@ class IRLocalizer:
         estimate = self._tracking_estimate(scan.stamp, self._predicted_particles(), {"phase": "tracking", "updated": False})
         if self._fix_pose is not None:
             estimate = replace(estimate, pose=self._predicted_poses(self._fix_pose[None, :])[0])
-        return estimate
+        return self._listed(estimate)
 
     # -- GlobalFixer ----------------------------------------------------------------------------
     def global_fix(self, scan: Scan) -> Estimate:
@@ -174,21 +176,48 @@ class IRLocalizer:
         return estimate
 
     def _global_check(self, scan: Scan, estimate: Estimate) -> Estimate:
-        """Restart from a global fix that fits the map clearly better than the tracked pose (docs/ir.md, "Beyond the paper")."""
+        """Restart from a global fix that fits the map clearly better than the tracked pose; keep the places that fit
+        as well as look-alikes (docs/ir.md, "Beyond the paper")."""
         s = self.settings
-        self._updates_since_check = 0
+        self._updates_since_check, self._lookalikes = 0, None
         fix = self.global_fix(scan)
         tracked = self.fixer.refined_scores(scan, estimate.pose[None, :]) if len(fix.candidates) else None
         if tracked is None:
             return estimate
         estimate = replace(estimate, details={**estimate.details, "global_check_tracked_score": float(tracked[0]),
                                               "global_check_fix_score": fix.details["best_score"]})
-        far = float(np.hypot(*(fix.pose[:2] - estimate.pose[:2]))) > max(s.nms_distance, 0.5)
-        if far and fix.details["best_score"] > float(tracked[0]) + s.global_check_margin:
+        elsewhere = np.hypot(*(fix.candidates[:, :2] - estimate.pose[:2]).T) > max(s.nms_distance, 0.5)
+        if elsewhere[0] and fix.details["best_score"] > float(tracked[0]) + s.global_check_margin:
             return self._start_from_fix(fix, "better global fix")
+        # A place elsewhere that fits neither clearly better nor clearly worse is a look-alike: the scans cannot
+        # tell that the robot is not there (docs/ir.md, "Look-alike places"); kept until the next check.
+        weights = fix.candidate_weights if fix.candidate_weights is not None else np.ones(len(fix.candidates))
+        scores = weights / weights[0] * fix.details["best_score"] if weights[0] > 0 else np.zeros(len(weights))
+        alike = elsewhere & (scores >= float(tracked[0]) - s.global_check_margin)
+        reference = self.odometry.reference
+        self._lookalikes = None if not alike.any() else (
+            fix.candidates[alike], None if reference is None else reference.copy())
         return estimate
 
+    def _listed(self, estimate: Estimate) -> Estimate:
+        """``estimate`` with the look-alikes of the last global check (moved by the odometry since): listed after
+        its pose, and no LOCALIZED beside them."""
+        if self._lookalikes is None:
+            return replace(estimate, details={**estimate.details, "lookalikes": 0})
+        poses, then = self._lookalikes
+        now = self.odometry.latest
+        if then is not None and now is not None:
+            poses = compose(poses, relative(then, now))
+        weights = estimate.candidate_weights if estimate.candidate_weights is not None else np.zeros(0)
+        top = float(weights.max(initial=0.0))
+        status = LocalizerStatus.AMBIGUOUS if estimate.status is LocalizerStatus.LOCALIZED else estimate.status
+        return replace(estimate, status=status,
+                       candidates=np.vstack([estimate.pose[None, :], poses, estimate.candidates]),
+                       candidate_weights=np.concatenate([np.full(1 + len(poses), top), weights]),
+                       details={**estimate.details, "lookalikes": len(poses)})
+
     def _start_tracking(self, particles: NDArray[np.float64], weights: NDArray[np.float64]) -> None:
+        self._lookalikes = None
         self.particles = particles
         self.weights = weights
         self.odometry.mark_updated(self.odometry.latest)
@@ -272,8 +301,8 @@ class IRLocalizer:
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
         self._updates_since_check += 1
         if s.global_check_updates and self._updates_since_check >= s.global_check_updates:
-            return self._global_check(scan, estimate)
-        return estimate
+            estimate = self._global_check(scan, estimate)
+        return self._listed(estimate)
 
     def _tracking_estimate(
         self,
