@@ -333,10 +333,7 @@ def evaluate_outputs(
         after_fix = (np.arange(stamps.size) >= fix) & has_truth
         fields["correct_rate"] = _rounded(np.mean(correct[after_fix]))
         fields["fine_rate"] = _rounded(np.mean(fine[after_fix]))
-        settled = after_fix & ~recovering
-        if settled.any():
-            fields["rmse_xy_m"] = _rounded(np.sqrt(np.mean(dxy[settled] ** 2)))
-            fields["rmse_theta_rad"] = _rounded(np.sqrt(np.mean(dtheta[settled] ** 2)))
+        fields["rmse_xy_m"], fields["rmse_theta_rad"] = _rmse(dxy, dtheta, after_fix & ~recovering)
     fields.update(
         correct=correct,
         fine=fine,
@@ -387,10 +384,16 @@ def shared_rmse(runs: Mapping[str, RmseSample]) -> dict[str, dict[str, Any]]:
         for start, stop in intervals:
             kept &= ~((stamps >= start) & (stamps < stop))
         fields[name]["shared_outputs"] = int(kept.sum())
-        if kept.any():
-            fields[name]["rmse_xy_m_shared"] = _rounded(np.sqrt(np.mean(dxy[kept] ** 2)))
-            fields[name]["rmse_theta_rad_shared"] = _rounded(np.sqrt(np.mean(dtheta[kept] ** 2)))
+        fields[name]["rmse_xy_m_shared"], fields[name]["rmse_theta_rad_shared"] = _rmse(dxy, dtheta, kept)
     return fields
+
+
+def _rmse(dxy: NDArray[np.float64], dtheta: NDArray[np.float64],
+          counted: NDArray[np.bool_]) -> tuple[float | None, float | None]:
+    """Position and heading RMSE over the ``counted`` outputs; nulls when none is."""
+    if not counted.any():
+        return None, None
+    return _rounded(np.sqrt(np.mean(dxy[counted] ** 2))), _rounded(np.sqrt(np.mean(dtheta[counted] ** 2)))
 
 
 def boxes_contain(boxes: ArrayLike, pose: ArrayLike) -> bool:

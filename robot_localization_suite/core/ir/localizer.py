@@ -191,6 +191,7 @@ class IRLocalizer:
             return self._start_from_fix(fix, "better global fix")
         # A place elsewhere that fits neither clearly better nor clearly worse is a look-alike: the scans cannot
         # tell that the robot is not there (docs/ir.md, "Look-alike places"); kept until the next check.
+        # the fix's candidate weights are its scores normalised (IRGlobalFixer.global_fix): scale back by the best
         weights = fix.candidate_weights if fix.candidate_weights is not None else np.ones(len(fix.candidates))
         scores = weights / weights[0] * fix.details["best_score"] if weights[0] > 0 else np.zeros(len(weights))
         alike = elsewhere & (scores >= float(tracked[0]) - s.global_check_margin)
