@@ -371,6 +371,28 @@ def test_a_place_step_1_missed_is_found_by_the_wide_search(
     assert "wide_search_positions" not in short_reach.global_fix(scan).details
 
 
+def test_a_place_whose_walls_a_scan_would_see_through_ranks_below_the_true_one() -> None:
+    # Two identical rooms; the second has a pillar. A scan taken in the first room ends on the second
+    # room's walls as well from the same spot there, but some of its beams would pass through the pillar.
+    data = np.zeros((int(4 / RES), int(10 / RES)), dtype=np.int8)
+    for x0 in (0.5, 5.5):
+        ix0, ix1, iy0, iy1 = int(x0 / RES), int((x0 + 4.0) / RES), int(0.5 / RES), int(3.5 / RES)
+        data[iy0 : iy1 + 2, [ix0, ix0 + 1, ix1, ix1 + 1]] = 100
+        data[[iy0, iy0 + 1, iy1, iy1 + 1], ix0 : ix1 + 2] = 100
+    data[int(1.8 / RES) : int(2.2 / RES), int(8.0 / RES) : int(8.4 / RES)] = 100  # the pillar
+    rooms = GridMap(data, RES, (0.0, 0.0))
+    truth, twin = np.array([1.5, 2.0, 0.0]), np.array([6.5, 2.0, 0.0])
+    scan = scan_at(rooms, truth)
+    ir = IRLocalizer(settings(), rooms)
+    ir.prepare(scan)
+    blind = ir.fixer.variant(replace(ir.settings, see_through_margin=0.0))
+    at_truth, at_twin = blind.refined_scores(scan, np.vstack([truth, twin]))
+    assert abs(at_truth - at_twin) < 0.01  # by its end points alone the twin explains the scan as well
+    at_truth, at_twin = ir.fixer.refined_scores(scan, np.vstack([truth, twin]))
+    assert at_truth - at_twin > 0.05
+    assert close(ir.global_fix(scan).candidates[0], truth, 0.2)
+
+
 def _hand_index(fans: np.ndarray) -> IRIndex:
     """An index over hand-made fans (no map): step 2 reads only positions and fans."""
     count = len(fans)

@@ -48,14 +48,21 @@ def _cell_of(flags, x, y, ox, oy, res):
 
 
 @numba.njit(cache=True, nogil=True)
-def _likelihood_ratios(flags, distance, ox, oy, res, poses, bx, by, inv_two_sigma2, outlier, chance, neutral, out):
-    """Mean log likelihood ratio per pose of the end points ``(bx, by)`` (laser frame) against chance."""
+def _likelihood_ratios(flags, distance, ox, oy, res, poses, bx, by, inv_two_sigma2, outlier, chance, neutral, through,
+                       out):
+    """Mean log likelihood ratio per pose of the end points ``(bx, by)`` (laser frame) against chance;
+    a beam marked in ``through`` (``(K, B)``, or ``(0, 0)``: none) scores the mixture's floor."""
     beams = bx.shape[0]
     reference = outlier + (1.0 - outlier) * chance
+    floor = math.log(outlier / reference)
+    marked = through.shape[0] > 0
     for k in range(poses.shape[0]):
         c, s = math.cos(poses[k, 2]), math.sin(poses[k, 2])
         total = 0.0
         for b in range(beams):
+            if marked and through[k, b]:
+                total += floor  # it passed through a mapped obstacle: the map does not explain it
+                continue
             px = poses[k, 0] + c * bx[b] - s * by[b]
             py = poses[k, 1] + s * bx[b] + c * by[b]
             iy, ix = _cell_of(flags, px, py, ox, oy, res)
@@ -167,6 +174,7 @@ class MapEvidence:
         *,
         outlier_share: float,
         neutral_unknown: bool = True,
+        through: NDArray[np.bool_] | None = None,
     ) -> NDArray[np.float64]:
         """Mean log likelihood ratio per pose of its end points, against chance on this map.
 
@@ -174,11 +182,13 @@ class MapEvidence:
         ``e + (1 - e) exp(-d_i^2 / 2 sigma^2)`` (``e`` = ``outlier_share``: the share of beams the
         map does not explain, which bounds what one such beam costs); chance is the same with the
         weight at :attr:`chance_weight`. With ``neutral_unknown`` an end point in an unknown cell
-        or off the map counts at least as chance (ratio 0).
+        or off the map counts at least as chance (ratio 0). A beam marked in ``through`` reached past
+        a mapped obstacle, wherever it ends: it scores ``e`` alone, as a beam the map does not explain.
 
         Args:
             poses: ``(K, 3)`` laser poses [m, m, rad].
             angles, ranges: ``(B,)`` the scan's hits in the laser frame [rad, m].
+            through: ``(K, B)`` beams that passed through a mapped obstacle at each pose, or None.
 
         Returns:
             ``(K,)`` mean log ratios [nats per beam]; 0 for a scan without hits.
@@ -187,12 +197,15 @@ class MapEvidence:
         angles = np.asarray(angles, dtype=np.float64)
         ranges = np.asarray(ranges, dtype=np.float64)
         out = np.zeros(len(poses))
+        if through is not None and np.shape(through) != (len(poses), ranges.size):
+            raise ValueError(f"through must be (poses, beams) = {(len(poses), ranges.size)}, got {np.shape(through)}")
         if len(poses) == 0 or ranges.size == 0:
             return out
         _likelihood_ratios(
             self.flags, self.distance, self.origin[0], self.origin[1], self.resolution, poses,
             np.ascontiguousarray(ranges * np.cos(angles)), np.ascontiguousarray(ranges * np.sin(angles)),
-            1.0 / (2.0 * self.sigma * self.sigma), float(outlier_share), self.chance_weight, bool(neutral_unknown), out,
+            1.0 / (2.0 * self.sigma * self.sigma), float(outlier_share), self.chance_weight, bool(neutral_unknown),
+            np.zeros((0, 0), dtype=np.bool_) if through is None else np.ascontiguousarray(through, dtype=np.bool_), out,
         )
         return out
 

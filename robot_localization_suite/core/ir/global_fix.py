@@ -24,6 +24,7 @@ from ..filter.particles import weighted_pose_statistics
 from ..filter.refinement import DistanceField, refine_poses
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
+from ..raycast import RayCaster
 from ..scan import Scan
 from .evidence import MapEvidence
 from .index import FanModel, IRIndex
@@ -50,13 +51,14 @@ class IRGlobalFixer:
         self.index: IRIndex | None = None
         self._field: DistanceField | None = None
         self._evidence: MapEvidence | None = None
+        self._caster: RayCaster | None = None
         self._coarse: tuple[IRIndex, NDArray[np.int64], float] | None = None
 
     def set_map(self, grid_map: GridMap) -> None:
         """Use this map; builds (or loads) the index now when the scanner model is given by the settings."""
         self.grid_map = grid_map
         self.index = None
-        self._field = self._evidence = None
+        self._field = self._evidence = self._caster = None
         s = self.settings
         if s.scanner_configured:
             self._build_index(s.configured_fan_model())
@@ -86,6 +88,13 @@ class IRGlobalFixer:
     def evidence(self, value: MapEvidence | None) -> None:
         self._evidence = value
 
+    @property
+    def caster(self) -> RayCaster | None:
+        """Ray casting on the map to the index's range, for beams seen through walls; made on first use."""
+        if self._caster is None and self.grid_map is not None and self.index is not None:
+            self._caster = RayCaster(self.grid_map, max_range=self.index.fan.max_range, skip_free_space=True)
+        return self._caster
+
     def variant(self, settings: IRSettings) -> IRGlobalFixer:
         """A fixer with other query settings sharing this one's map, distance field and index.
 
@@ -96,6 +105,7 @@ class IRGlobalFixer:
             raise ValueError("an IR variant must share the index settings of the fixer it comes from")
         other = IRGlobalFixer(settings)
         other.grid_map, other.field, other.index = self.grid_map, self.field, self.index
+        other._caster = self.caster
         if (settings.refine_sigma, settings.endpoint_tolerance) == (
             self.settings.refine_sigma, self.settings.endpoint_tolerance
         ):
@@ -144,8 +154,13 @@ class IRGlobalFixer:
             max_shift=s.refine_max_shift, max_turn=s.refine_max_turn,
         )
         if s.rank_score == "likelihood_ratio" and self.evidence is not None:
+            through = None
+            if s.see_through_margin > 0.0 and self.caster is not None and len(refined):
+                # Beams that reached past a mapped wall, which no end-point score sees (docs/ir.md, "Seen through").
+                through = ranges[None, :] > self.caster.cast(refined, angles) + s.see_through_margin
             likelihood = self.evidence.likelihood_ratios(
-                refined, angles, ranges, outlier_share=s.outlier_share, neutral_unknown=s.neutral_unknown
+                refined, angles, ranges, outlier_share=s.outlier_share, neutral_unknown=s.neutral_unknown,
+                through=through,
             )
         return refined, likelihood
 
@@ -292,6 +307,7 @@ class IRGlobalFixer:
     def _build_index(self, fan: FanModel) -> None:
         assert self.grid_map is not None
         s = self.settings
+        self._caster = None  # cast to the new fan's range
         self.index = IRIndex.load_or_build(
             self.grid_map,
             fan,

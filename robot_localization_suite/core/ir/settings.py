@@ -86,6 +86,10 @@ class IRSettings(Settings):
                               choices=("likelihood_ratio", "mean_weight"))
     outlier_share: float = setting(0.05, "likelihood_ratio: share of beams the map does not explain (bounds what "
                                    "one such beam costs)", low=0.0, low_open=True, high=1.0)
+    see_through_margin: float = setting(0.3, "likelihood_ratio: a hit longer than the range ray-cast on the map at "
+                                        "the pose by more than this passed through a mapped obstacle and scores as a "
+                                        "beam the map does not explain; 0: off (end points only)", unit="m",
+                                        low=0.0, high=100.0)
     refine_candidates: int = setting(300, "best step-2 poses aligned to the map and re-ranked; 0: paper's list",
                                      low=0, high=1_000_000)
     refine_iterations: int = setting(8, "Gauss-Newton iterations of the refinement", low=0, high=1000)
