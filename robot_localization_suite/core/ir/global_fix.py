@@ -92,7 +92,7 @@ class IRGlobalFixer:
     def caster(self) -> RayCaster | None:
         """Ray casting on the map to the index's range, for beams seen through walls; made on first use."""
         if self._caster is None and self.grid_map is not None and self.index is not None:
-            self._caster = RayCaster(self.grid_map, max_range=self.index.fan.max_range, skip_free_space=True)
+            self._caster = RayCaster(self.grid_map, max_range=self.index.fan.max_range)
         return self._caster
 
     def variant(self, settings: IRSettings) -> IRGlobalFixer:
