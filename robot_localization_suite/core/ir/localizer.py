@@ -206,9 +206,8 @@ class IRLocalizer:
         if self._lookalikes is None:
             return replace(estimate, details={**estimate.details, "lookalikes": 0})
         poses, then = self._lookalikes
-        now = self.odometry.latest
-        if then is not None and now is not None:
-            poses = compose(poses, relative(then, now))
+        if then is not None:
+            poses = self._predicted_poses(poses, since=then)
         weights = estimate.candidate_weights if estimate.candidate_weights is not None else np.zeros(0)
         top = float(weights.max(initial=0.0))
         status = LocalizerStatus.AMBIGUOUS if estimate.status is LocalizerStatus.LOCALIZED else estimate.status
@@ -244,8 +243,11 @@ class IRLocalizer:
         assert self.particles is not None
         return self._predicted_poses(self.particles)
 
-    def _predicted_poses(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
-        odom, reference = self.odometry.latest, self.odometry.reference
+    def _predicted_poses(
+        self, poses: NDArray[np.float64], since: NDArray[np.float64] | None = None
+    ) -> NDArray[np.float64]:
+        """``poses`` moved by the odometry from ``since`` (default: the last update's reference) to the latest."""
+        odom, reference = self.odometry.latest, self.odometry.reference if since is None else since
         if odom is None or reference is None:
             return poses
         return compose(poses, relative(reference, odom))
