@@ -69,6 +69,8 @@ class IRLocalizer:
         self._fix_pose: NDArray[np.float64] | None = None
         # the places elsewhere that the last global check found to fit as well, and the odometry then
         self._lookalikes: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
+        # a global fix whose best place fitted clearly better, the odometry then, and the updates that confirmed it
+        self._challenger: tuple[Estimate, NDArray[np.float64] | None, int] | None = None
 
     @property
     def initialized(self) -> bool:
@@ -179,7 +181,7 @@ class IRLocalizer:
         """Restart from a global fix that fits the map clearly better than the tracked pose; keep the places that fit
         as well as look-alikes (docs/ir.md, "Beyond the paper")."""
         s = self.settings
-        self._updates_since_check, self._lookalikes = 0, None
+        self._updates_since_check, self._lookalikes, self._challenger = 0, None, None
         fix = self.global_fix(scan)
         tracked = self.fixer.refined_scores(scan, estimate.pose[None, :]) if len(fix.candidates) else None
         if tracked is None:
@@ -188,7 +190,12 @@ class IRLocalizer:
                                               "global_check_fix_score": fix.details["best_score"]})
         elsewhere = np.hypot(*(fix.candidates[:, :2] - estimate.pose[:2]).T) > max(s.nms_distance, 0.5)
         if elsewhere[0] and fix.details["best_score"] > float(tracked[0]) + s.global_check_margin:
-            return self._start_from_fix(fix, "better global fix")
+            if s.global_check_confirmations == 0:
+                return self._start_from_fix(fix, "better global fix")
+            # one scan's lead may be a few beams that people or an outdated map decide: the next scan after
+            # motion must not refute it (docs/ir.md, "Confirmed restarts"); until then it is listed as a look-alike
+            reference = self.odometry.reference
+            self._challenger = (fix, None if reference is None else reference.copy(), 0)
         # A place elsewhere that fits neither clearly better nor clearly worse is a look-alike: the scans cannot
         # tell that the robot is not there (docs/ir.md, "Look-alike places"); kept until the next check.
         # the fix's candidate weights are its scores normalised (IRGlobalFixer.global_fix): scale back by the best
@@ -199,6 +206,26 @@ class IRLocalizer:
         self._lookalikes = None if not alike.any() else (
             fix.candidates[alike], None if reference is None else reference.copy())
         return estimate
+
+    def _confirm_challenger(self, scan: Scan, estimate: Estimate) -> tuple[Estimate, bool]:
+        """Score the pending better fix's best place, moved by the odometry, against the tracked pose on this scan:
+        clearly worse (by ``global_check_margin``) forgets it; else it is confirmed, and the last confirmation
+        restarts the tracker from the fix (True) (docs/ir.md, "Confirmed restarts")."""
+        assert self._challenger is not None
+        s = self.settings
+        fix, then, confirmations = self._challenger
+        moved = replace(fix, stamp=scan.stamp) if then is None else replace(
+            fix, stamp=scan.stamp, pose=self._predicted_poses(fix.pose[None, :], since=then)[0],
+            candidates=self._predicted_poses(fix.candidates, since=then))
+        scores = self.fixer.refined_scores(scan, np.vstack([moved.pose, estimate.pose]))
+        if scores is None or scores[0] < scores[1] - s.global_check_margin:
+            # refuted; the look-alikes of the check stay listed until the next one
+            self._challenger = None
+            return replace(estimate, details={**estimate.details, "challenger_refuted": True}), False
+        if confirmations + 1 >= s.global_check_confirmations:
+            return self._start_from_fix(moved, "better global fix"), True
+        self._challenger = (fix, then, confirmations + 1)
+        return estimate, False
 
     def _listed(self, estimate: Estimate) -> Estimate:
         """``estimate`` with the look-alikes of the last global check (moved by the odometry since): listed after
@@ -217,7 +244,7 @@ class IRLocalizer:
                        details={**estimate.details, "lookalikes": len(poses)})
 
     def _start_tracking(self, particles: NDArray[np.float64], weights: NDArray[np.float64]) -> None:
-        self._lookalikes = None
+        self._lookalikes, self._challenger = None, None
         self.particles = particles
         self.weights = weights
         self.odometry.mark_updated(self.odometry.latest)
@@ -303,7 +330,10 @@ class IRLocalizer:
         self.particles = moved[chosen]
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
         self._updates_since_check += 1
-        if s.global_check_updates and self._updates_since_check >= s.global_check_updates:
+        restarted = False
+        if self._challenger is not None:
+            estimate, restarted = self._confirm_challenger(scan, estimate)
+        if not restarted and s.global_check_updates and self._updates_since_check >= s.global_check_updates:
             estimate = self._global_check(scan, estimate)
         return self._listed(estimate)
 

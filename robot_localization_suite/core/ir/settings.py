@@ -140,6 +140,9 @@ class IRSettings(Settings):
                                         "better; 0: never (paper)", low=0, high=1_000_000)
     global_check_margin: float = setting(0.01, "... better by this much of the mean end-point likelihood",
                                          low=0.0, high=1.0)
+    global_check_confirmations: int = setting(1, "... and is not clearly worse, moved by the odometry, on the scans "
+                                              "of this many following updates; 0: restart on one check", low=0,
+                                              high=1000)
     localized_spread: float = setting(0.5, "LOCALIZED when the particles' xy spread is at most this", unit="m",
                                       low=0.0, low_open=True, high=1e3)
     seed: int = setting(0, "seed of the filter's random numbers", low=0, high=2**31 - 1)
