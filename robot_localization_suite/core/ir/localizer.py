@@ -214,9 +214,10 @@ class IRLocalizer:
         assert self._challenger is not None
         s = self.settings
         fix, then, confirmations = self._challenger
-        moved = replace(fix, stamp=scan.stamp) if then is None else replace(
-            fix, stamp=scan.stamp, pose=self._predicted_poses(fix.pose[None, :], since=then)[0],
-            candidates=self._predicted_poses(fix.candidates, since=then))
+        moved = replace(fix, stamp=scan.stamp)
+        if then is not None:
+            poses = self._predicted_poses(np.vstack([fix.pose, fix.candidates]), since=then)
+            moved = replace(moved, pose=poses[0], candidates=poses[1:])
         scores = self.fixer.refined_scores(scan, np.vstack([moved.pose, estimate.pose]))
         if scores is None or scores[0] < scores[1] - s.global_check_margin:
             # refuted; the look-alikes of the check stay listed until the next one
