@@ -419,6 +419,32 @@ def test_map_coverage_splits_rates_on_a_map_without_the_far_wall(kidnap_bag, tmp
     assert fixes["global_correct_rate"] == expected["correct_rate"]
 
 
+def test_containment_is_split_by_map_coverage_like_the_correct_rate(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    half = room_map()
+    half.data[:, 230:] = -1  # the far wall unknown: the later scans are not covered
+    half_yaml = half.save(tmp_path / "half.yaml")
+
+    def box_off_from_5_to_8_s(stamp: float, true_pose: np.ndarray) -> dict:
+        shift = off_from_5_to_8_s(stamp)[0]
+        return {"boxes": np.array([[[true_pose[0] - 0.1 + shift, true_pose[0] + 0.1 + shift],
+                                     [true_pose[1] - 0.1, true_pose[1] + 0.1],
+                                     [true_pose[2] - 0.1, true_pose[2] + 0.1]]])}
+
+    fields = bench.run_benchmark([path], [echo_spec(truth, constant_offset, fields=box_off_from_5_to_8_s)], tmp_path,
+                                 map_yaml=half_yaml, isolate=False, plots=False)["room_kidnap"]["echo"]
+    coverage = bench_scan_coverage.bag_scan_coverage(path, load_map_yaml(half_yaml)).at(
+        100.0 + np.arange(201) * SCAN_PERIOD)
+    contained = np.ones(201, dtype=bool)
+    contained[50:80] = False  # 5 s to 8 s: the box 1 m off the truth
+    covered = coverage >= metrics.COVERED_FRACTION
+    assert covered[50:80].all() and 0 < covered.sum() < 201  # the misses fall where the map covers the scan
+    assert fields["containment_rate"] == pytest.approx(171 / 201, abs=1e-4)
+    assert fields["containment_outputs_covered"] == covered.sum()
+    assert fields["containment_rate_covered"] == pytest.approx(contained[covered].mean(), abs=1e-4)
+    assert f"containment_rate_covered {fields['containment_rate_covered']:g}" in (tmp_path / "summary.md").read_text()
+
+
 PREPARE_SLEEP_S = 0.3
 
 

@@ -77,6 +77,8 @@ class OutputScores:
         recall: global fixes, ``(F, len(RECALL_KS))``: a correct candidate among the first k.
         localized: replays, per output: reported LOCALIZED.
         rmse: replays, the errors and left-out intervals for ``metrics.shared_rmse``.
+        contained, contained_coverage: replays of a set method (IAL's boxes), per output with
+            boxes: the set holds the truth, and the map coverage of that output's scan.
     """
 
     kind: str
@@ -88,6 +90,8 @@ class OutputScores:
     recall: NDArray[np.bool_] | None = None
     localized: NDArray[np.bool_] | None = None
     rmse: metrics.RmseSample | None = None
+    contained: NDArray[np.bool_] | None = None
+    contained_coverage: NDArray[np.float64] | None = None
 
 
 def _coverage_at(coverage: ScanCoverage | None, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -102,11 +106,16 @@ def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCover
     has_truth = np.isfinite(np.asarray(series["position_error_m"], dtype=np.float64))
     fix = metrics.first_fix_index(record.stamps, correct)
     counted = has_truth & (np.arange(correct.size) >= (fix if fix is not None else 0))
+    contained = contained_coverage = None
+    if record.containment is not None and record.containment_stamps is not None:
+        contained = np.asarray(record.containment, dtype=bool)
+        contained_coverage = _coverage_at(coverage, np.asarray(record.containment_stamps, dtype=np.float64))
     return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
                         _coverage_at(coverage, record.stamps), fixed=fix is not None,
                         localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool),
                         rmse=metrics.RmseSample(record.stamps, np.asarray(series["position_error_m"]),
-                                                np.asarray(series["heading_error_rad"]), series["rmse_excluded"]))
+                                                np.asarray(series["heading_error_rad"]), series["rmse_excluded"]),
+                        contained=contained, contained_coverage=contained_coverage)
 
 
 def global_fix_scores(record: GlobalFixRecord, coverage: ScanCoverage | None) -> OutputScores:
@@ -128,7 +137,8 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
 
     Replays: ``outputs`` (counted), ``correct_rate``, ``fine_rate``, ``outputs_covered``,
     ``correct_rate_covered``, ``map_coverage_median`` (over all outputs with a coverage),
-    ``runs_without_fix``. Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
+    ``runs_without_fix``; a set method's runs also ``containment_rate``, ``containment_rate_covered``
+    and ``containment_outputs_covered`` (every output with a set, from the first). Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
     ``recall_at_k``, ``fixes_covered``, ``global_correct_rate_covered``, ``map_coverage_median``.
     """
     if not runs:
@@ -155,7 +165,7 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
     all_correct = np.concatenate([r.correct for r in runs])
     localized = np.concatenate([r.localized if r.localized is not None else np.zeros(r.correct.size, bool)
                                 for r in runs])
-    return {
+    fields = {
         "outputs": int(counted.sum()),
         "correct_rate": _rate(correct),
         "localized_rate": _rate(localized),
@@ -166,18 +176,29 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
         "map_coverage_median": median,
         "runs_without_fix": sum(not r.fixed for r in runs),
     }
+    sets_and_coverage = [(r.contained, r.contained_coverage) for r in runs
+                         if r.contained is not None and r.contained_coverage is not None]
+    if sets_and_coverage:
+        sets = metrics.coverage_rates(np.concatenate([c for c, _ in sets_and_coverage]),
+                                      np.concatenate([v for _, v in sets_and_coverage]))
+        fields.update(containment_rate=sets["correct_rate"], containment_rate_covered=sets["correct_rate_covered"],
+                      containment_outputs_covered=sets["outputs_covered"])
+    return fields
 
 
 def run_coverage_fields(scores: OutputScores) -> dict[str, Any]:
     """The coverage fields of one run: ``map_coverage_median`` and the rates over covered outputs
     (``correct_rate_covered`` and ``outputs_covered``, null without a fix, as ``correct_rate``;
-    for global fixes ``global_correct_rate_covered`` and ``fixes_covered``)."""
+    ``containment_rate_covered`` and ``containment_outputs_covered`` for a set method; for global fixes ``global_correct_rate_covered`` and ``fixes_covered``)."""
     pooled = pooled_fields([scores])
     if scores.kind == "global_fixes":
         keys = ("map_coverage_median", "fixes_covered", "global_correct_rate_covered")
         return {key: pooled[key] for key in keys}
-    return {
+    fields = {
         "map_coverage_median": pooled["map_coverage_median"],
         "outputs_covered": pooled["outputs_covered"] if scores.fixed else None,
         "correct_rate_covered": pooled["correct_rate_covered"] if scores.fixed else None,
     }
+    if "containment_rate_covered" in pooled:  # a set method: every output, fix or not
+        fields.update({key: pooled[key] for key in ("containment_rate_covered", "containment_outputs_covered")})
+    return fields

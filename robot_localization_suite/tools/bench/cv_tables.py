@@ -75,8 +75,15 @@ def _header(first: list[str], columns: tuple[tuple[str, str], ...]) -> list[str]
     return [_row(titles), "|" + "---|" * len(titles)]
 
 
+def _containment_notes(entry: Mapping[str, Any]) -> list[str]:
+    """A set method's containment, all outputs and those with the map covering the scan (honest / same map)."""
+    if not any("containment_rate" in (entry.get(kind) or {}) for kind in ("honest", "same_map")):
+        return []
+    return [f"containment {_pair(entry, 'containment_rate')}, {COVERED} {_pair(entry, 'containment_rate_covered')}"]
+
+
 def _run_notes(entry: Mapping[str, Any]) -> list[str]:
-    notes = []
+    notes = _containment_notes(entry)
     for kind in ("honest", "same_map"):
         fields = entry.get(kind) or {}
         if "error" in fields:
@@ -95,7 +102,8 @@ def _pooled_table(pooled: Mapping[str, Mapping[str, Any]], columns: tuple[tuple[
             if "skipped" in entry:
                 lines.append(_row([log, name, "–", *("" for _ in columns), f"skipped: {entry['skipped']}"]))
                 continue
-            notes = [f"left out {block} ({why})" for block, why in entry.get("left_out", {}).items()]
+            notes = _containment_notes(entry)
+            notes += [f"left out {block} ({why})" for block, why in entry.get("left_out", {}).items()]
             without_fix = [f"{kind} {entry[kind]['runs_without_fix']}" for kind in ("honest", "same_map")
                            if (entry.get(kind) or {}).get("runs_without_fix")]
             if without_fix:
