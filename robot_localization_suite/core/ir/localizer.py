@@ -19,7 +19,12 @@ from numpy.typing import NDArray
 
 from ..errors import ScanError
 from ..filter.odometry_gate import OdometryGate
-from ..filter.particles import densest_neighbourhood_mean, low_variance_resample, weighted_pose_statistics
+from ..filter.particles import (
+    densest_neighbourhood_mean,
+    low_variance_resample,
+    pose_spread,
+    weighted_pose_statistics,
+)
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
 from ..motion import OdometryMotionModel, VelocityMotionModel
@@ -350,13 +355,14 @@ class IRLocalizer:
             weights = self.weights if self.weights is not None else np.full(len(particles), 1.0 / len(particles))
         pose = densest_neighbourhood_mean(particles, weights)
         _, covariance = weighted_pose_statistics(particles, weights)
-        # The cloud's xy spread [m]: root of the summed position variances (RMS distance to the centroid).
-        spread = float(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0)))
+        std_xy, _ = pose_spread(covariance)
         covariance = covariance + COVARIANCE_FLOOR
-        details = {**details, "particles": len(particles), "spread_m": spread, "low_score_updates": self._low_score_updates}
+        details = {**details, "particles": len(particles), "std_xy_m": std_xy, "low_score_updates": self._low_score_updates}
         if np.isfinite(self._best_score):
             details.setdefault("best_endpoint_score", self._best_score)
-        status = LocalizerStatus.LOCALIZED if spread <= s.localized_spread else LocalizerStatus.AMBIGUOUS
+        # Two standard deviations along the widest axis within 0.5 m: the node stands behind the pose
+        # as mcl_baseline does (docs/ir.md, "Status").
+        status = LocalizerStatus.LOCALIZED if std_xy <= s.localized_max_std_xy else LocalizerStatus.AMBIGUOUS
         if self._low_score_updates > 0:
             status = LocalizerStatus.LOST
         return Estimate(

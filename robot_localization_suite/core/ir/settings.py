@@ -143,8 +143,9 @@ class IRSettings(Settings):
     global_check_confirmations: int = setting(1, "... and is not clearly worse, moved by the odometry, on the scans "
                                               "of this many following updates; 0: restart on one check", low=0,
                                               high=1000)
-    localized_spread: float = setting(0.5, "LOCALIZED when the particles' xy spread is at most this", unit="m",
-                                      low=0.0, low_open=True, high=1e3)
+    localized_max_std_xy: float = setting(0.25, "LOCALIZED when the cloud's position standard deviation along its "
+                                          "widest axis is at most this (mcl_baseline's setting and default)", unit="m",
+                                          low=0.0, low_open=True, high=1e3)
     seed: int = setting(0, "seed of the filter's random numbers", low=0, high=2**31 - 1)
     # cache
     cache_dir: str = setting("", "index cache directory; empty: $RLS_CACHE_DIR or ~/.cache/robot_localization_suite",
