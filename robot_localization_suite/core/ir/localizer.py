@@ -27,9 +27,10 @@ from ..filter.particles import (
 )
 from ..grid_map import GridMap
 from ..localizer import Estimate, LocalizerStatus
+from ..metrics import CORRECT_THETA_RAD, CORRECT_XY_M
 from ..motion import OdometryMotionModel, VelocityMotionModel
 from ..scan import Scan
-from ..se2 import compose, relative, wrap_angle
+from ..se2 import angle_difference, compose, relative, wrap_angle
 from .global_fix import COVARIANCE_FLOOR, IRGlobalFixer
 from .index import FanModel, IndexSettings, IRIndex
 from .settings import IRSettings
@@ -193,7 +194,11 @@ class IRLocalizer:
             return estimate
         estimate = replace(estimate, details={**estimate.details, "global_check_tracked_score": float(tracked[0]),
                                               "global_check_fix_score": fix.details["best_score"]})
-        elsewhere = np.hypot(*(fix.candidates[:, :2] - estimate.pose[:2]).T) > max(s.nms_distance, 0.5)
+        # elsewhere: a pose that would not be correct where the tracked one is, or the other way round
+        # (0.5 m or 25 degrees apart): the mirrored heading at the same spot of a symmetric corridor too
+        far = np.hypot(*(fix.candidates[:, :2] - estimate.pose[:2]).T) > max(s.nms_distance, CORRECT_XY_M)
+        turned = np.abs(angle_difference(fix.candidates[:, 2], estimate.pose[2])) > max(s.nms_angle, CORRECT_THETA_RAD)
+        elsewhere = far | turned
         if elsewhere[0] and fix.details["best_score"] > float(tracked[0]) + s.global_check_margin:
             if s.global_check_confirmations == 0:
                 return self._start_from_fix(fix, "better global fix")
