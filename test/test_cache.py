@@ -134,3 +134,22 @@ def test_load_cached_passes_on_a_cache_errors_own_message(tmp_path: Path) -> Non
     warnings: list[str] = []
     assert load_cached(path, stale, what="Test", warn=warnings.append) is None
     assert warnings == [f"cache {str(path)!r} was built with other settings; rebuilding it"]
+
+
+def test_the_source_digest_follows_the_code_of_the_modules(tmp_path: Path) -> None:
+    import types
+
+    from robot_localization_suite.core import cache
+
+    def module(name: str, text: str) -> types.ModuleType:
+        path = tmp_path / f"{name}.py"
+        path.write_text(text)
+        made = types.ModuleType(name)
+        made.__file__ = str(path)
+        return made
+
+    first, same, edited = module("a", "X = 1\n"), module("b", "X = 1\n"), module("c", "X = 2\n")
+    assert cache.source_digest(first) == cache.source_digest(same)  # the content, not the file's name
+    assert cache.source_digest(first) != cache.source_digest(edited)
+    assert cache.source_digest(first, edited) != cache.source_digest(edited, first)
+

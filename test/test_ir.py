@@ -568,6 +568,23 @@ def test_the_cache_key_follows_the_map_and_the_settings(world: GridMap) -> None:
     assert key != IRIndex.cache_key(moved, fan, defaults)
 
 
+def test_an_index_cached_by_other_code_is_not_read_as_this_codes(world: GridMap, localizer: IRLocalizer,
+                                                                  tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Another commit (or a scratch worktree sharing the cache directory) built the file: same map, fan and
+    # settings, other ray caster. Its key and its stored meta name other code, so this code rebuilds.
+    from robot_localization_suite.core.ir import index as index_module
+
+    built = localizer.index
+    key = IRIndex.cache_key(world, built.fan, built.settings)
+    path = tmp_path / f"{key}.npz"
+    built.save(path)
+    assert IRIndex.load(path, built.fan, built.settings).fans.shape == built.fans.shape
+    monkeypatch.setattr(index_module, "source_digest", lambda *modules: "other-code")
+    assert IRIndex.cache_key(world, built.fan, built.settings) != key
+    with pytest.raises(CacheError, match="other settings"):
+        IRIndex.load(path, built.fan, built.settings)
+
+
 def test_index_settings_come_from_ir_settings_and_only_index_parameters_change_the_key(world: GridMap) -> None:
     with pytest.raises(TypeError):
         IndexSettings()  # no second set of defaults to drift from IRSettings'

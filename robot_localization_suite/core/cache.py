@@ -18,6 +18,8 @@ Notes (why modification time, per-directory budgets, concurrent writers): docs/i
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import logging
 import math
 import os
@@ -27,6 +29,7 @@ import time
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any, TypeVar
 
 import numpy as np
@@ -44,6 +47,7 @@ __all__ = [
     "mark_used",
     "npz_member_memmap",
     "prune_cache",
+    "source_digest",
 ]
 
 _LOG = logging.getLogger(__name__)
@@ -254,3 +258,18 @@ def _kernel_name(ev: Any) -> str:
 
 def _numba_cache_dir() -> str:
     return os.environ.get("NUMBA_CACHE_DIR", "") or str(default_cache_dir() / "numba")
+
+
+@functools.cache
+def _file_digest(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def source_digest(*modules: ModuleType) -> str:
+    """A short hash of the source files of ``modules``: part of a cache key, so that a file built by other code
+    (another commit, a scratch worktree sharing the cache directory) is never read as this code's."""
+    digest = hashlib.sha256()
+    for module in modules:
+        path = getattr(module, "__file__", None)
+        digest.update((_file_digest(path) if path else module.__name__).encode())
+    return digest.hexdigest()[:16]

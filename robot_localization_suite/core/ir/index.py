@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import os
+import sys
 import time
 import zipfile
 from dataclasses import dataclass
@@ -37,11 +38,20 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from ..cache import cache_budget_bytes, default_cache_dir, load_cached, npz_member_memmap, prune_cache
+from .. import edt, grid_map, raycast
+from ..cache import (
+    cache_budget_bytes,
+    default_cache_dir,
+    load_cached,
+    npz_member_memmap,
+    prune_cache,
+    source_digest,
+)
 from ..errors import CacheError
 from ..grid_map import GridMap
 from ..progress import ReportingBar, progress_disabled
 from ..raycast import RayCaster
+from . import patterns as _patterns_module
 from .patterns import (
     NO_RETURN,
     count_fan_runs,
@@ -67,7 +77,14 @@ __all__ = [
 _LOG = logging.getLogger(__name__)
 
 #: Bump when the cache layout or the meaning of a stored array changes.
-CACHE_VERSION = 6
+CACHE_VERSION = 7
+
+
+def _cache_meta(fan: FanModel, settings: IndexSettings) -> dict[str, Any]:
+    """What a cached index was built from: the layout version, the code that builds it (the ray caster, the
+    distance transform, the map's masks, the patterns and this module), the fan and the settings."""
+    code = source_digest(raycast, edt, grid_map, _patterns_module, sys.modules[__name__])
+    return {"version": CACHE_VERSION, "code": code, "fan": fan.__dict__, "settings": settings.__dict__}
 # Lattice points tested at once when the candidate positions are chosen (bounds the temporaries).
 _LATTICE_POINTS_AT_ONCE = 1 << 20
 # Arrays smaller than this are read into memory even when an index is memory-mapped [bytes].
@@ -520,9 +537,7 @@ class IRIndex:
     @staticmethod
     def cache_key(grid_map: GridMap, fan: FanModel, settings: IndexSettings) -> str:
         """Map fingerprint + hash of every setting that changes the index."""
-        description = json.dumps(
-            {"version": CACHE_VERSION, "fan": fan.__dict__, "settings": settings.__dict__}, sort_keys=True
-        )
+        description = json.dumps(_cache_meta(fan, settings), sort_keys=True)
         digest = hashlib.sha256(description.encode()).hexdigest()[:16]
         return f"{grid_map.fingerprint()}_{digest}"
 
@@ -534,9 +549,7 @@ class IRIndex:
             np.savez(
                 fh,
                 meta=np.frombuffer(
-                    json.dumps(
-                        {"version": CACHE_VERSION, "fan": self.fan.__dict__, "settings": self.settings.__dict__}
-                    ).encode(),
+                    json.dumps(_cache_meta(self.fan, self.settings)).encode(),
                     dtype=np.uint8,
                 ),
                 positions=self.positions,
@@ -566,7 +579,7 @@ class IRIndex:
         try:
             data = _read_npz(path, memory_map=memory_map)
             meta = json.loads(bytes(data["meta"]).decode())
-            if meta != {"version": CACHE_VERSION, "fan": fan.__dict__, "settings": settings.__dict__}:
+            if meta != _cache_meta(fan, settings):
                 raise CacheError(f"IR cache {str(path)!r} was built with other settings: {meta!r}")
             pattern_count = int(data["pattern_count"])
             hit_patterns = HitIndex(data["hit_indptr"], data["hit_patterns"], pattern_count, pattern_blocks(pattern_count))

@@ -25,6 +25,7 @@ import hashlib
 import json
 import logging
 import os
+import sys
 import tempfile
 import time
 import zipfile
@@ -35,7 +36,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..cache import cache_budget_bytes, default_cache_dir, load_cached, npz_member_memmap, prune_cache
+from .. import edt, raycast
+from .. import grid_map as grid_map_module
+from ..cache import (
+    cache_budget_bytes,
+    default_cache_dir,
+    load_cached,
+    npz_member_memmap,
+    prune_cache,
+    source_digest,
+)
 from ..errors import CacheError, MapError
 from ..grid_map import GridMap
 from ..progress import ReportingBar, progress_disabled
@@ -54,7 +64,7 @@ __all__ = [
 ]
 
 # Bump when the learned content changes meaning, so that old cache files are not reused.
-LEARNING_VERSION = 2
+LEARNING_VERSION = 3
 #: A learned ray's byte: ``round(D / R * CODE_LEVELS)`` for a range ``D <= R`` (``I = 1 - code / CODE_LEVELS``) ...
 CODE_LEVELS = 254
 #: ... or this for a ray the map cannot predict.
@@ -225,6 +235,7 @@ def _learning_key(
 ) -> str:
     params = {
         "version": LEARNING_VERSION,
+        "code": source_digest(raycast, edt, grid_map_module, sys.modules[__name__]),
         "tile_size": round(float(tile_size), 9),
         "angle_count": int(angle_count),
         "max_range": round(float(max_range), 9),
