@@ -77,10 +77,7 @@ class GridMap:
             raise MapError(f"map with origin {self.origin!r}, {data.shape[1]} x {data.shape[0]} cells at "
                            f"{self.resolution!r} m reaches more than {MAX_COORDINATE_M:g} m from the origin")
         self.data = np.ascontiguousarray(data, dtype=np.int8)
-        # nav_msgs/OccupancyGrid carries the resolution as float32 (0.05 arrives as 0.05000000074505806): held at
-        # that precision, the map from the topic and from its YAML are one map, cast alike under their one cache
-        # key (two values under one key gave IR indexes that differed with whichever run built the file).
-        self.resolution = float(np.float32(self.resolution))
+        self.resolution = float(self.resolution)
         self.origin = (float(self.origin[0]), float(self.origin[1]))
 
     # -- geometry -----------------------------------------------------------------
@@ -213,8 +210,8 @@ class GridMap:
     def fingerprint(self) -> str:
         """A short hash of the map content, for keying on-disk caches.
 
-        The resolution is held at float32 precision (``__post_init__``), as nav_msgs/OccupancyGrid carries
-        it: the same map from a YAML file (0.05) and from the topic (0.05000000074505806) shares one key.
+        The resolution enters at float32 precision, as nav_msgs/OccupancyGrid carries it: the same map
+        from a YAML file (0.05) and from the topic (0.05000000074505806) shares one key.
         """
         import hashlib
 
@@ -281,7 +278,7 @@ class GridMap:
         meta = {
             "image": image_path.name,
             "mode": "trinary",
-            "resolution": float(np.format_float_positional(np.float32(self.resolution), unique=True)),  # 0.05, not 0.0500000007
+            "resolution": self.resolution,
             "origin": [self.origin[0], self.origin[1], 0.0],
             "negate": 0,
             "occupied_thresh": 0.65,
