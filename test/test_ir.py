@@ -566,6 +566,10 @@ def test_the_cache_key_follows_the_map_and_the_settings(world: GridMap) -> None:
     assert key != IRIndex.cache_key(world, replace(fan, rays=360), defaults)
     moved = GridMap(world.data, world.resolution, (1.0, 0.0))
     assert key != IRIndex.cache_key(moved, fan, defaults)
+    # the same map from /map (float32 resolution) shares the fingerprint but casts differently: its own index
+    from_topic = GridMap(world.data, float(np.float32(world.resolution)), world.origin)
+    assert from_topic.fingerprint() == world.fingerprint() and from_topic.resolution != world.resolution
+    assert key != IRIndex.cache_key(from_topic, fan, defaults)
 
 
 def test_an_index_cached_by_other_code_is_not_read_as_this_codes(world: GridMap, localizer: IRLocalizer,

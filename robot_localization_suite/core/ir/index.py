@@ -536,8 +536,9 @@ class IRIndex:
     # -- cache --------------------------------------------------------------------------
     @staticmethod
     def cache_key(grid_map: GridMap, fan: FanModel, settings: IndexSettings) -> str:
-        """Map fingerprint + hash of every setting that changes the index."""
-        description = json.dumps(_cache_meta(fan, settings), sort_keys=True)
+        """Map fingerprint + hash of every setting that changes the index, the code that builds it, and the map's exact
+        resolution (the fingerprint reads it at float32 precision, but 0.05 and 0.05000000074505806 cast differently)."""
+        description = json.dumps({**_cache_meta(fan, settings), "resolution": grid_map.resolution}, sort_keys=True)
         digest = hashlib.sha256(description.encode()).hexdigest()[:16]
         return f"{grid_map.fingerprint()}_{digest}"
 

@@ -236,6 +236,7 @@ def _learning_key(
     params = {
         "version": LEARNING_VERSION,
         "code": source_digest(raycast, edt, grid_map_module, sys.modules[__name__]),
+        "resolution": grid_map.resolution,  # exact: the fingerprint reads it at float32 precision
         "tile_size": round(float(tile_size), 9),
         "angle_count": int(angle_count),
         "max_range": round(float(max_range), 9),
