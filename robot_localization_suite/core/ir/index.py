@@ -85,6 +85,8 @@ def _cache_meta(fan: FanModel, settings: IndexSettings) -> dict[str, Any]:
     distance transform, the map's masks, the patterns and this module), the fan and the settings."""
     code = source_digest(raycast, edt, grid_map, _patterns_module, sys.modules[__name__])
     return {"version": CACHE_VERSION, "code": code, "fan": fan.__dict__, "settings": settings.__dict__}
+
+
 # Lattice points tested at once when the candidate positions are chosen (bounds the temporaries).
 _LATTICE_POINTS_AT_ONCE = 1 << 20
 # Arrays smaller than this are read into memory even when an index is memory-mapped [bytes].
