@@ -237,3 +237,12 @@ def test_a_params_file_merges_wildcard_then_own_section_and_refuses_a_foreign_on
 def test_an_unknown_localizer_is_named_with_the_known_ones() -> None:
     with pytest.raises(KeyError, match="unknown localizer 'amcl'; known: mcl_baseline"):
         registry.plugin("amcl")
+
+
+@pytest.mark.parametrize("name", sorted(registry.PLUGINS))
+def test_every_packaged_params_file_names_the_simulators_robot_frame(name: str) -> None:
+    """Live on ``scan_sim``, a node whose ``base_frame_id`` is not the simulator's robot frame finds no laser mount on
+    /tf_static and drops every scan for 5 s before it falls back to laser_x/y/yaw (the hybrid's file did)."""
+    simulator = read_params_file(registry.config_dir() / "scan_sim.yaml", "scan_sim")
+    params = read_params_file(registry.config_dir() / f"{name}.yaml", name)
+    assert params.get("base_frame_id") == simulator["base_frame"]
