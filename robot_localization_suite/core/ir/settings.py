@@ -52,9 +52,9 @@ class IRSettings(Settings):
     min_clearance: float = setting(0.15, "positions at least this far from obstacles and unknown cells", unit="m",
                                    low=0.0, high=10.0, read_only=True)
     unknown_blocks: bool = setting(False, "unknown cells stop the precomputed rays", read_only=True)
-    pattern_max_range: float = setting(5.5, "beyond this a reading ends a pattern (paper 5.5, its laser's range); "
-                                       "0: the precomputed range (max_range)", unit="m", low=0.0, high=1e4,
-                                       read_only=True)
+    pattern_max_range: float = setting(0.0, "beyond this a reading ends a pattern; 0: the sensor's range as "
+                                       "precomputed (max_range), as the paper's 5.5 m was its laser's (docs/ir.md)",
+                                       unit="m", low=0.0, high=1e4, read_only=True)
     pattern_range_bin: float = setting(0.10, "range bin of a first-level hit", unit="m", low=0.001, high=10.0,
                                        read_only=True)
     pattern_terms_per_end: int = setting(30, "beams indexed from each end of a pattern", low=1, high=100_000,
