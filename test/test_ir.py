@@ -927,26 +927,3 @@ def test_reinitialize_and_initial_pose(world: GridMap, localizer: IRLocalizer) -
     assert not tracker.initialized
     again = tracker.on_scan(scan_at(world, pose))
     assert again is not None and again.details["phase"] == "initialization"
-
-
-def test_a_scan_no_particle_explains_moves_the_cloud_by_the_motion_alone(world: GridMap, localizer: IRLocalizer) -> None:
-    """A poor update (best end-point score below the lost floor) does not resample: the scan says nothing about which
-    particle is right, so the few at the cloud's edge that fit it least badly must not take the cloud (before, they
-    did, and the next right scan was still a poor update, 5 degrees off)."""
-    rng = np.random.default_rng(3)
-    truth = _drive(world, [(2.0, 1.5), (6.0, 1.5)], step=0.3)
-    tracker = IRLocalizer(settings(global_check_updates=0), None)
-    _share_index(tracker, localizer)
-    tracker.set_initial_pose(truth[0], np.diag([0.05**2, 0.05**2, 0.02**2]))
-    _run(tracker, world, truth[:6], rng, truth[0])
-    assert tracker.particles is not None
-    spread_before = float(np.std(tracker.particles[:, 0]))
-    tracker.on_odometry(0.6, truth[6])
-    elsewhere = truth[6] + np.array([0.0, 0.6, 0.4])  # the scan of a pose off the cloud: its edge fits it best
-    estimate = tracker.on_scan(scan_at(world, elsewhere, noise=0.02, rng=rng, stamp=0.6))
-    assert estimate is not None and estimate.status is LocalizerStatus.LOST, estimate.details
-    assert np.hypot(*(np.mean(tracker.particles[:, :2], axis=0) - truth[6, :2])) < 0.15
-    assert float(np.std(tracker.particles[:, 0])) > 0.5 * spread_before, "the cloud kept its spread, not one particle"
-    tracker.on_odometry(0.7, truth[7])
-    after = tracker.on_scan(scan_at(world, truth[7], noise=0.02, rng=rng, stamp=0.7))
-    assert after is not None and close(after.pose, truth[7], 0.2, math.radians(5.0)), after
