@@ -317,8 +317,7 @@ class IRLocalizer:
         best = float(scores.max(initial=0.0))
         self._best_score = best
         average = self._score_average
-        fits_nowhere = best < self._lost_floor()
-        if fits_nowhere:
+        if best < self._lost_floor():
             self._low_score_updates += 1
             if self._low_score_updates >= s.lost_update_count:
                 self._reset_tracking()
@@ -328,9 +327,7 @@ class IRLocalizer:
             # Running average of the good updates' best scores (rate 0.2 after the first).
             self._score_average = best if not np.isfinite(average) else 0.8 * average + 0.2 * best
         weights = scores**s.score_exponent if s.score_exponent != 1.0 else scores.copy()
-        if fits_nowhere or weights.sum() <= 0.0:
-            # A scan no particle explains does not choose among them (one of 0.3 m all round collapsed the
-            # cloud onto the one particle beside a box); the motion alone moves them (docs/ir.md, "Status").
+        if weights.sum() <= 0.0:
             weights = np.ones(len(moved))
         weights /= weights.sum()
         # The estimate comes from the weighted particles (the best-fitting cluster), then they are resampled.
@@ -340,7 +337,8 @@ class IRLocalizer:
             scan.stamp, moved,
             {"phase": "tracking", "updated": True, "best_endpoint_score": best, "best_particle": best_particle}, weights,
         )
-        self.particles = moved if fits_nowhere else moved[low_variance_resample(weights, s.particle_count, self._rng)]
+        chosen = low_variance_resample(weights, s.particle_count, self._rng)
+        self.particles = moved[chosen]
         self.weights = np.full(s.particle_count, 1.0 / s.particle_count)
         self._updates_since_check += 1
         restarted = False
