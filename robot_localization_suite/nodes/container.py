@@ -120,24 +120,35 @@ class Container:
         if node is None:
             self.log(f"a callback of no node raised {type(exc).__name__}: {exc}")
             return
-        with self._lock:
-            present = self.nodes.get(node.get_name()) is node
-        if not present:
+        name = self._take(node)
+        if name is None:
             return  # a callback that was under way as its node was stopped for an earlier failure
-        self._report(node.get_name(), exc, "raised")
-        self.remove(node)
+        self._report(name, exc, "raised")
+        self._destroy(name, node)
 
     def remove(self, node: Node) -> None:
         """Stop spinning ``node`` and destroy it."""
+        name = self._take(node)
+        if name is not None:
+            self._destroy(name, node)
+
+    def _take(self, node: Node) -> str | None:
+        """Drop ``node`` from the nodes held; its name, or None if it is no longer held.
+
+        By identity, not ``node.get_name()``: a second failing callback of a node another thread is destroying
+        raised InvalidHandle there (test_container, once in a fresh-clone run)."""
         with self._lock:
-            if self.nodes.get(node.get_name()) is not node:
-                return
-            del self.nodes[node.get_name()]
+            name = next((key for key, held in self.nodes.items() if held is node), None)
+            if name is not None:
+                del self.nodes[name]
+        return name
+
+    def _destroy(self, name: str, node: Node) -> None:
         self.executor.remove_node(node)
         try:
             node.destroy_node()
         except Exception as exc:  # noqa: BLE001 - the node is gone either way
-            self.log(f"{node.get_name()}: destroying it raised {type(exc).__name__}: {exc}")
+            self.log(f"{name}: destroying it raised {type(exc).__name__}: {exc}")
 
     def spin(self, ok: Callable[[], bool] = lambda: True, period_s: float = 0.2) -> None:
         """Spin until ``ok()`` is false or no node is left; nodes that asked to exit (shutdown) leave."""
