@@ -20,12 +20,14 @@ gives at least 80 % of the replay's outputs (measured: 42-43 of 43 for IMA, 71-7
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from robot_localization_suite.ros.tf import TFMessage
-from robot_localization_suite.tools.live_check import live_runs, record_scenario, replay_rate, scenario_path
+from robot_localization_suite.tools.live_check import LiveResult, live_runs, record_scenario, replay_rate, scenario_path
 
 pytestmark = pytest.mark.skipif(TFMessage is None, reason="tf2_msgs is not installed (make builds it)")
 
@@ -37,31 +39,31 @@ CAMERA_LOCALIZERS = ["ima_topo_localizer", "hybrid_localizer"]
 CAMERA_SECONDS = 32.0
 
 
-def test_every_laser_localizer_live_scores_within_5_points_of_its_replay(tmp_path: Path) -> None:
-    scenario = scenario_path("office_kidnap")
-    bag = record_scenario(scenario, tmp_path / "bag", SECONDS)
-    live = {result.localizer: result for result in live_runs(LOCALIZERS, scenario, SECONDS, tracking=TRACKING)}
-    replay = {name: replay_rate(bag, name, "tracking" if name in TRACKING else "global") for name in LOCALIZERS}
+def live_and_replay(tmp_path: Path, scenario_name: str, names: list[str], seconds: float,
+                    tracking: Sequence[str] = ()) -> dict[str, tuple[LiveResult, dict[str, Any], str]]:
+    """Each of ``names`` live together and replayed on the recorded seconds; both scored, within 5 points."""
+    scenario = scenario_path(scenario_name)
+    bag = record_scenario(scenario, tmp_path / scenario.stem, seconds)  # named so per-bag params apply as live
+    live = {result.localizer: result for result in live_runs(names, scenario, seconds, tracking=tracking)}
+    replay = {name: replay_rate(bag, name, "tracking" if name in tracking else "global") for name in names}
     lines = {name: f"{name}: live {live[name].correct_rate} over {live[name].outputs} outputs, "
-                   f"replay {replay[name]['correct_rate']} over {replay[name]['outputs']}" for name in LOCALIZERS}
+                   f"replay {replay[name]['correct_rate']} over {replay[name]['outputs']}" for name in names}
     print("\n" + "\n".join(lines.values()))
-    for name in LOCALIZERS:
-        assert live[name].outputs >= 20, lines[name]  # localized live at all (MCL updates every 0.25 m: ~50 in 22 s)
+    for name in names:
         assert live[name].correct_rate is not None and replay[name]["correct_rate"] is not None, lines[name]
         assert abs(live[name].correct_rate - replay[name]["correct_rate"]) <= TOLERANCE, lines[name]
+    return {name: (live[name], replay[name], lines[name]) for name in names}
+
+
+def test_every_laser_localizer_live_scores_within_5_points_of_its_replay(tmp_path: Path) -> None:
+    runs = live_and_replay(tmp_path, "office_kidnap", LOCALIZERS, SECONDS, tracking=TRACKING)
+    for live, _, line in runs.values():
+        assert live.outputs >= 20, line  # localized live at all (MCL updates every 0.25 m: ~50 in 22 s)
 
 
 def test_the_camera_localizers_live_score_within_5_points_of_their_replay_through_the_twin_kidnapping(
         tmp_path: Path) -> None:
-    scenario = scenario_path("office_twins_camera")
-    bag = record_scenario(scenario, tmp_path / scenario.stem, CAMERA_SECONDS)  # named so its per-bag params apply
-    live = {result.localizer: result for result in live_runs(CAMERA_LOCALIZERS, scenario, CAMERA_SECONDS)}
-    replay = {name: replay_rate(bag, name) for name in CAMERA_LOCALIZERS}
-    lines = {name: f"{name}: live {live[name].correct_rate} over {live[name].outputs} outputs, "
-                   f"replay {replay[name]['correct_rate']} over {replay[name]['outputs']}" for name in CAMERA_LOCALIZERS}
-    print("\n" + "\n".join(lines.values()))
-    for name in CAMERA_LOCALIZERS:
-        assert replay[name]["outputs"] >= 20, lines[name]
-        assert live[name].outputs >= 0.8 * replay[name]["outputs"], lines[name]
-        assert live[name].correct_rate is not None and replay[name]["correct_rate"] is not None, lines[name]
-        assert abs(live[name].correct_rate - replay[name]["correct_rate"]) <= TOLERANCE, lines[name]
+    runs = live_and_replay(tmp_path, "office_twins_camera", CAMERA_LOCALIZERS, CAMERA_SECONDS)
+    for live, replay, line in runs.values():
+        assert replay["outputs"] >= 20, line
+        assert live.outputs >= 0.8 * replay["outputs"], line
