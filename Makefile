@@ -5,7 +5,8 @@
 #   make test PYTEST_ARGS="-k raycast"    options of pytest
 #   make bench BENCH_ARGS="--skip ial_localizer:fr101"   options of rls_bench (see .venv/bin/rls_bench --help)
 #   make bench-cv                         only the cross-validation runs (honest maps) on the real logs
-#   make bench-campus                     IR and PIL on the Freiburg campus (its bag is made on demand)
+#   make bench-campus                     the Freiburg campus (its bag is made on demand): IR and PIL fixes,
+#                                         the trackers replayed
 #   make bench-paper                      PIL, IR, IAL and IMA as their papers describe them (config/*_paper.yaml)
 #   make bench BENCH_WORKERS=2            runs side by side (Dask workers): faster, but the update times then
 #                                         share the cores and differ from the published tables (1: one at a time)
@@ -99,7 +100,8 @@ $(CV_SPLITS)/%_cv.yaml: | $(STAMP)
 		--blocks 5 --name $* --overwrite
 
 # The Freiburg campus (5,166 x 5,492 cells at 5 cm): its bag is larger than bags/' 30 MB budget, so it
-# is made here on demand, once; single-scan global fixes of the methods with a precomputed index.
+# is made here on demand, once; single-scan global fixes of the methods with a precomputed index, then
+# the trackers replayed from the first true pose (results/campus_bench/tracking/: peak RSS of every node).
 CAMPUS_BAG ?= results/campus
 ifeq ($(HAVE_CARMEN),)
 bench-campus:
@@ -108,6 +110,9 @@ else
 bench-campus: $(STAMP) $(INTERFACES) $(CAMPUS_BAG)/metadata.yaml
 	$(PY) -m robot_localization_suite.tools.bench $(CAMPUS_BAG) --localizers ir_initializer pil_localizer \
 		--global-fixes --every 20 --out results/campus_bench --max-seconds $(BENCH_MAX_SECONDS) $(BENCH_ARGS)
+	$(PY) -m robot_localization_suite.tools.bench $(CAMPUS_BAG) --localizers mcl_baseline hybrid_localizer \
+		ial_localizer --mode tracking --out results/campus_bench/tracking --max-seconds $(BENCH_MAX_SECONDS) \
+		$(BENCH_ARGS)
 endif
 
 $(CAMPUS_BAG)/metadata.yaml: | $(STAMP)

@@ -495,6 +495,28 @@ def test_with_a_partial_map_unknown_space_scores_as_a_half_likely_obstacle() -> 
         pytest.approx(model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0)[0])
 
 
+def test_the_field_table_made_in_blocks_of_rows_is_the_formula_at_every_cell(monkeypatch: pytest.MonkeyPatch) -> None:
+    from robot_localization_suite.core.mcl import sensor_models
+
+    data = np.zeros((23, 40), dtype=np.int8)
+    data[:, 30] = 100
+    data[5:9, 12] = 100
+    data[:, :10] = -1  # open unknown space, credited in the partial-map table
+    grid = GridMap(data, 0.1, (0.0, 0.0))
+    monkeypatch.setattr(sensor_models, "_TABLE_BLOCK_CELLS", 3 * 40 + 7)  # 3 rows a block, the last one short
+    model = LikelihoodFieldModel(grid, z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0, unknown_occupancy=0.8)
+    hit = np.exp(-np.minimum(grid.distance_field(), 2.0).astype(np.float64) ** 2 / 0.08)
+    table, _ = model.table(10.0)
+    np.testing.assert_array_equal(table, np.log(0.5 * hit + 0.05).astype(np.float32))
+    credited = np.where(grid.open_unknown()[0], np.maximum(hit, 0.8), hit)
+    partial, _ = model.table(10.0, partial_map=True)
+    np.testing.assert_array_equal(partial, np.log(0.5 * credited + 0.05).astype(np.float32))
+    assert partial[:, :10].min() >= np.float32(math.log(0.5 * 0.8 + 0.05))
+    # another range replaces the tables of the last one: the scanner's range_max is fixed, and each is a map's size
+    model.table(20.0)
+    assert {key[0] for key in model._tables} == {20.0}
+
+
 def test_an_unmapped_obstacle_near_the_laser_explains_a_short_reading_and_not_a_far_one() -> None:
     plain = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0)
     model = LikelihoodFieldModel(_wall_map(), z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0,

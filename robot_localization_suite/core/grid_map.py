@@ -162,19 +162,27 @@ class GridMap:
         out[inside] = self.free_mask[iy, ix]
         return out
 
+    def _free_cells(self) -> NDArray[np.int32] | NDArray[np.int64]:
+        """Row-major flat indices of the free cells, 4 bytes each where they fit (a campus map: 46 MB)."""
+        if "free_cells" not in self._cache:
+            flat = np.flatnonzero(self.free_mask)
+            self._cache["free_cells"] = flat.astype(np.int32) if self.data.size < 2**31 else flat
+        return self._cache["free_cells"]
+
+    def _flat_to_world(self, flat: NDArray[np.integer]) -> NDArray[np.float64]:
+        iy, ix = np.divmod(flat.astype(np.int64), self.width)
+        return self.cell_to_world(np.stack([ix, iy], axis=-1))
+
     def free_cell_centres(self) -> NDArray[np.float64]:
-        """World coordinates ``(N, 2)`` of the centres of all free cells."""
-        if "free_centres" not in self._cache:
-            iy, ix = np.nonzero(self.free_mask)
-            self._cache["free_centres"] = self.cell_to_world(np.stack([ix, iy], axis=-1))
-        return self._cache["free_centres"]
+        """World coordinates ``(N, 2)`` of the centres of all free cells (made on each call: 16 bytes a cell)."""
+        return self._flat_to_world(self._free_cells())
 
     def sample_free_poses(self, count: int, rng: np.random.Generator) -> NDArray[np.float64]:
         """``count`` poses uniform over free space (x, y jittered inside the cell, theta uniform)."""
-        centres = self.free_cell_centres()
-        if len(centres) == 0:
+        free = self._free_cells()
+        if len(free) == 0:
             raise MapError("the map has no free cell to sample poses from")
-        picks = centres[rng.integers(0, len(centres), size=count)]
+        picks = self._flat_to_world(free[rng.integers(0, len(free), size=count)])
         jitter = rng.uniform(-0.5, 0.5, size=(count, 2)) * self.resolution
         theta = rng.uniform(-np.pi, np.pi, size=(count, 1))
         return np.hstack([picks + jitter, theta])

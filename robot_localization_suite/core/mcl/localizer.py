@@ -180,7 +180,10 @@ class MonteCarloLocalizer:
             )
         self._free_mask = ~grid_map.occupied_mask
         # Load the compiled kernels now (map setup), not in the first update.
-        self._sensor.log_likelihood(np.zeros((1, 3)), np.zeros(1), np.ones(1), max_range=10.0)
+        if isinstance(self._sensor, LikelihoodFieldModel):
+            self._sensor.load_kernels()
+        else:
+            self._sensor.log_likelihood(np.zeros((1, 3)), np.zeros(1), np.ones(1), max_range=10.0)
         if isinstance(self._sensor, LikelihoodFieldModel) and s.do_beamskip:
             self._sensor.beam_agreement(np.zeros((1, 3)), np.ones(1), np.zeros(1), np.ones(1),
                                         distance=s.beam_skip_distance)

@@ -32,6 +32,10 @@ from ..raycast import RayCaster
 __all__ = ["LikelihoodFieldModel", "BeamModel", "PartialMapScores", "field_log_likelihood"]
 
 
+# Cells per block when a per-cell table is computed (float64 temporaries of about 8 MB each).
+_TABLE_BLOCK_CELLS = 1 << 20
+
+
 def _check_positive(name: str, value: float) -> None:
     if not np.isfinite(value) or value <= 0.0:
         raise ValueError(f"{name} must be positive and finite, got {value!r}")
@@ -263,17 +267,11 @@ class LikelihoodFieldModel:
         self.unknown_occupancy = float(unknown_occupancy)
         self.unmapped_weight = float(unmapped_weight)
         self.unmapped_decay = float(unmapped_decay)
-        distance = np.minimum(grid_map.distance_field(), np.float32(self.max_distance)).astype(np.float64)
-        hit = np.exp(-(distance**2) / (2.0 * self.sigma_hit**2))
+        grid_map.distance_field()  # map setup: the field every table is made from
         far = math.exp(-(self.max_distance**2) / (2.0 * self.sigma_hit**2))
-        self._hit_term = {False: self.z_hit * hit}
         self._off_map_hit_term = {False: self.z_hit * far}
         if self.unknown_occupancy > 0.0:
-            # Inside open unknown cells only, one value: no slope that would pull end points towards
-            # unknown space; none behind closed walls, where a beam cannot reach.
-            open_unknown, open_off_map = grid_map.open_unknown()
-            unknown = np.maximum(hit, self.unknown_occupancy)
-            self._hit_term[True] = self.z_hit * np.where(open_unknown, unknown, hit)
+            _, open_off_map = grid_map.open_unknown()
             self._off_map_hit_term[True] = self.z_hit * (max(far, self.unknown_occupancy) if open_off_map else far)
         self._far_hit_term = self.z_hit * far
         self._occupied = np.ascontiguousarray(grid_map.occupied_mask)
@@ -297,12 +295,37 @@ class LikelihoodFieldModel:
         partial = partial_map and self.unknown_occupancy > 0.0
         key = (float(max_range), partial)
         if key not in self._tables:
-            if len(self._tables) > 8:  # the scanner's range_max rarely changes; keep the cache small
-                self._tables.clear()
+            # The tables of one range only (the scanner's range_max is fixed): each is 4 bytes a cell.
+            for stale in [k for k in self._tables if k[0] != key[0]]:
+                del self._tables[stale]
             random_term = self.z_rand / key[0]
-            table = np.log(self._hit_term[partial] + random_term).astype(np.float32)
-            self._tables[key] = (table, math.log(self._off_map_hit_term[partial] + random_term))
+            self._tables[key] = (self._log_table(random_term, partial),
+                                 math.log(self._off_map_hit_term[partial] + random_term))
         return self._tables[key]
+
+    def _log_table(self, random_term: float, partial: bool) -> NDArray[np.float32]:
+        """``log(z_hit * hit + random_term)`` per cell, in blocks of rows: no float64 copy of a large map is held.
+
+        ``partial``: in open unknown cells ``hit`` is at least ``unknown_occupancy``, one value for all of
+        them, so no slope pulls end points into unknown space; none behind closed walls, where no beam reaches.
+        """
+        distance = self.grid_map.distance_field()
+        open_unknown = self.grid_map.open_unknown()[0] if partial else None
+        table = np.empty(distance.shape, dtype=np.float32)
+        rows = max(1, _TABLE_BLOCK_CELLS // max(1, distance.shape[1]))
+        for start in range(0, distance.shape[0], rows):
+            block = slice(start, start + rows)
+            capped = np.minimum(distance[block], np.float32(self.max_distance)).astype(np.float64)
+            hit = np.exp(-(capped**2) / (2.0 * self.sigma_hit**2))
+            if open_unknown is not None:
+                hit = np.where(open_unknown[block], np.maximum(hit, self.unknown_occupancy), hit)
+            table[block] = np.log(self.z_hit * hit + random_term)
+        return table
+
+    def load_kernels(self) -> None:
+        """Load the compiled scoring kernel now (map setup), on a one-cell table, not in the first update."""
+        field_log_likelihood(np.zeros((1, 1), dtype=np.float32), self.grid_map.resolution, self.grid_map.origin,
+                             np.zeros((1, 3)), np.zeros(1), np.ones(1), 0.0, np.zeros(1))
 
     def log_likelihood(
         self, poses: ArrayLike, angles: ArrayLike, ranges: ArrayLike, *, max_range: float, partial_map: bool = False
