@@ -252,6 +252,33 @@ def test_updates_wait_for_motion_and_a_nomotion_request_forces_one(office: GridM
     assert localizer.on_scan(Scan(scan.stamp + 0.3, scan.angles, scan.ranges, 0.05, scan.range_max)) is not None
 
 
+def test_an_update_below_the_motion_thresholds_moves_the_particles_by_the_odometry_first(office: GridMap) -> None:
+    # A robot turning in place by less than update_min_a (0.2 rad): a forced update (a nomotion request, a
+    # contradicted scan) must weigh the scan at the turned poses, as nav2 does, not where the robot was.
+    caster = RayCaster(office, max_range=10.0)
+    angles = np.linspace(-np.radians(135.0), np.radians(135.0), 181)
+
+    def scan_at(pose: np.ndarray, stamp: float) -> Scan:
+        ranges = caster.cast(pose[None, :], angles)[0].astype(np.float64)
+        ranges[ranges >= 10.0] = np.inf
+        return Scan(stamp, angles.copy(), ranges, 0.05, 10.0)
+
+    start = np.array([2.0, 4.0, 0.3])
+    turned = start + np.array([0.0, 0.0, 0.15])
+    localizer = MonteCarloLocalizer(MclSettings(random_seed=0), office)
+    localizer.set_initial_pose(start, np.diag([1e-4, 1e-4, 1e-4]))
+    localizer.on_odometry(0.0, np.zeros(3))
+    first = localizer.on_scan(scan_at(start, 0.0))
+    assert first is not None
+    localizer.on_odometry(0.1, np.array([0.0, 0.0, 0.15]))
+    assert localizer.on_scan(scan_at(turned, 0.1)) is None  # below the thresholds: no update is due
+    localizer.request_nomotion_update()
+    forced = localizer.on_scan(scan_at(turned, 0.2))
+    assert forced is not None
+    assert abs(angle_difference(forced.pose[2], turned[2])) < 0.03
+    assert forced.details["fit"] > 0.9 * first.details["fit"]
+
+
 def test_a_global_start_keeps_several_hypotheses_after_the_first_scan(office: GridMap, run: Drive) -> None:
     def first_update(fraction: float) -> float:
         localizer = MonteCarloLocalizer(MclSettings(max_particles=20000, min_effective_fraction=fraction), office)

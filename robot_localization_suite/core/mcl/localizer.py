@@ -237,12 +237,17 @@ class MonteCarloLocalizer:
                 moved = gate.moved(odom)
         if not (moved or gate.forced or self._contradicted(beams, odom)):
             return None
-        if moved and gate.reference is not None and odom is not None:
+        # Every update moves the particles by the odometry since the last one, as nav2 does for a forced
+        # update: one forced or contradicted below the thresholds (a robot turning in place) must not weigh
+        # a scan at poses the robot has left (docs/mcl.md, "Standing still").
+        if gate.reference is not None and odom is not None and not np.array_equal(odom, gate.reference):
             # the odometry's own noise once LOCALIZED; the wider noise keeps a searching cloud diverse (docs/mcl.md)
             motion = self.tracking_motion_model if self._ever_localized else self.motion_model
             self.particles = motion.sample(self.particles, gate.reference, odom, self.rng)
             self.rivals.predict(motion, gate.reference, odom, self.rng)
-        gate.mark_updated(odom if moved else gate.reference)
+            gate.mark_updated(odom)
+        else:
+            gate.mark_updated(gate.reference)
         return self._update(scan.stamp, beams)
 
     def contradicts(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
