@@ -79,6 +79,7 @@ class OutputScores:
         rmse: replays, the errors and left-out intervals for ``metrics.shared_rmse``.
         contained, contained_coverage: replays of a set method (IAL's boxes), per output with
             boxes: the set holds the truth, and the map coverage of that output's scan.
+        contained_needed: the share of the scan the set's bound assumes the map explains (NaN: not declared).
     """
 
     kind: str
@@ -92,6 +93,7 @@ class OutputScores:
     rmse: metrics.RmseSample | None = None
     contained: NDArray[np.bool_] | None = None
     contained_coverage: NDArray[np.float64] | None = None
+    contained_needed: NDArray[np.float64] | None = None
 
 
 def _coverage_at(coverage: ScanCoverage | None, stamps: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -106,16 +108,19 @@ def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCover
     has_truth = np.isfinite(np.asarray(series["position_error_m"], dtype=np.float64))
     fix = metrics.first_fix_index(record.stamps, correct)
     counted = has_truth & (np.arange(correct.size) >= (fix if fix is not None else 0))
-    contained = contained_coverage = None
+    contained = contained_coverage = contained_needed = None
     if record.containment is not None and record.containment_stamps is not None:
         contained = np.asarray(record.containment, dtype=bool)
         contained_coverage = _coverage_at(coverage, np.asarray(record.containment_stamps, dtype=np.float64))
+        contained_needed = np.asarray(record.containment_needed if record.containment_needed is not None
+                                      else np.full(contained.size, np.nan), dtype=np.float64)
     return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
                         _coverage_at(coverage, record.stamps), fixed=fix is not None,
                         localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool),
                         rmse=metrics.RmseSample(record.stamps, np.asarray(series["position_error_m"]),
                                                 np.asarray(series["heading_error_rad"]), series["rmse_excluded"]),
-                        contained=contained, contained_coverage=contained_coverage)
+                        contained=contained, contained_coverage=contained_coverage,
+                        contained_needed=contained_needed)
 
 
 def global_fix_scores(record: GlobalFixRecord, coverage: ScanCoverage | None) -> OutputScores:
@@ -138,7 +143,9 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
     Replays: ``outputs`` (counted), ``correct_rate``, ``fine_rate``, ``outputs_covered``,
     ``correct_rate_covered``, ``map_coverage_median`` (over all outputs with a coverage),
     ``runs_without_fix``; a set method's runs also ``containment_rate``, ``containment_rate_covered``
-    and ``containment_outputs_covered`` (every output with a set, from the first). Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
+    and ``containment_outputs_covered`` (every output with a set, from the first), and where it declares
+    the share of the scan its bound assumes explained, ``containment_rate_bound_held`` and
+    ``containment_outputs_bound_held``: over the outputs whose scan the map explains that well at the truth. Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
     ``recall_at_k``, ``fixes_covered``, ``global_correct_rate_covered``, ``map_coverage_median``.
     """
     if not runs:
@@ -183,6 +190,16 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
                                       np.concatenate([v for _, v in sets_and_coverage]))
         fields.update(containment_rate=sets["correct_rate"], containment_rate_covered=sets["correct_rate_covered"],
                       containment_outputs_covered=sets["outputs_covered"])
+        needed = [r.contained_needed for r in runs if r.contained is not None and r.contained_coverage is not None]
+        if all(n is not None for n in needed):
+            contained = np.concatenate([c for c, _ in sets_and_coverage])
+            coverage_of_sets = np.concatenate([v for _, v in sets_and_coverage])
+            needed_all = np.concatenate([n for n in needed if n is not None])
+            declared = np.isfinite(needed_all)
+            if declared.any():
+                held = declared & np.isfinite(coverage_of_sets) & (coverage_of_sets >= needed_all - 1e-9)
+                fields.update(containment_rate_bound_held=_rate(contained[held]),
+                              containment_outputs_bound_held=int(held.sum()))
     return fields
 
 
@@ -200,5 +217,7 @@ def run_coverage_fields(scores: OutputScores) -> dict[str, Any]:
         "correct_rate_covered": pooled["correct_rate_covered"] if scores.fixed else None,
     }
     if "containment_rate_covered" in pooled:  # a set method: every output, fix or not
-        fields.update({key: pooled[key] for key in ("containment_rate_covered", "containment_outputs_covered")})
+        fields.update({key: pooled[key] for key in ("containment_rate_covered", "containment_outputs_covered",
+                                                    "containment_rate_bound_held", "containment_outputs_bound_held")
+                       if key in pooled})
     return fields

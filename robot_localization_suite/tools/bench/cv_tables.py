@@ -79,7 +79,11 @@ def _containment_notes(entry: Mapping[str, Any]) -> list[str]:
     """A set method's containment, all outputs and those with the map covering the scan (honest / same map)."""
     if not any("containment_rate" in (entry.get(kind) or {}) for kind in ("honest", "same_map")):
         return []
-    return [f"containment {_pair(entry, 'containment_rate')}, {COVERED} {_pair(entry, 'containment_rate_covered')}"]
+    notes = [f"containment {_pair(entry, 'containment_rate')}, {COVERED} {_pair(entry, 'containment_rate_covered')}"]
+    if any("containment_rate_bound_held" in (entry.get(kind) or {}) for kind in ("honest", "same_map")):
+        notes.append(f"where the scan meets the set's bound {_pair(entry, 'containment_rate_bound_held')} "
+                     f"({_pair(entry, 'containment_outputs_bound_held')} outputs)")
+    return notes
 
 
 def _run_notes(entry: Mapping[str, Any]) -> list[str]:

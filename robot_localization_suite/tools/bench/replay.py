@@ -92,6 +92,7 @@ class RunRecord:
     containment: list[bool] | None = None
     containment_stamps: list[float] | None = None
     containment_lost: list[bool] | None = None
+    containment_needed: list[float] | None = None  # the share of the scan the set's bound assumes explained (NaN: none)
     box_hull_widths: list[tuple[float, float, float]] | None = None  # x [m], y [m], theta [rad] of each output's boxes
     place_correct: list[bool] | None = None
     corrected_heading_error_deg: list[float] | None = None
@@ -116,11 +117,14 @@ def _method_checks(record: RunRecord, estimate: Estimate, base_truth: NDArray[np
     if not np.all(np.isfinite(base_truth)):
         return
     if estimate.boxes is not None:
-        if record.containment is None or record.containment_stamps is None or record.containment_lost is None:
+        if (record.containment is None or record.containment_stamps is None or record.containment_lost is None
+                or record.containment_needed is None):
             record.containment, record.containment_stamps, record.containment_lost = [], [], []
+            record.containment_needed = []
         record.containment.append(metrics.boxes_contain(estimate.boxes, base_truth))
         record.containment_stamps.append(float(estimate.stamp))
         record.containment_lost.append(estimate.status is LocalizerStatus.LOST)
+        record.containment_needed.append(float((estimate.details or {}).get("explained_needed", math.nan)))
         boxes = np.asarray(estimate.boxes, dtype=np.float64).reshape(-1, 3, 2)
         if len(boxes):
             record.box_hull_widths = record.box_hull_widths if record.box_hull_widths is not None else []

@@ -70,8 +70,8 @@ _GLOBAL_COLUMNS = (
     ("fix_ms_p95", "fix p95 [ms]"),
     ("peak_rss_mb", "peak RSS [MB]"),
 )
-_SPECIFIC = ("containment_rate", "containment_rate_after_restart", "containment_rate_covered", "box_hull_median",
-             "correct_place_rate", "heading_error_when_corrected_deg")
+_SPECIFIC = ("containment_rate", "containment_rate_after_restart", "containment_rate_covered",
+             "containment_rate_bound_held", "box_hull_median", "correct_place_rate", "heading_error_when_corrected_deg")
 
 
 def _is_global_fixes(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> bool:
