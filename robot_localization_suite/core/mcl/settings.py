@@ -58,7 +58,9 @@ class MclSettings(Settings):
     robot_model_type: str = setting(
         "differential", "odometry motion model (nav2 plugin names accepted)", choices=tuple(ROBOT_MODEL_TYPES)
     )
-    laser_model_type: str = setting("likelihood_field", "laser sensor model (nav2 likelihood_field)",
+    laser_model_type: str = setting("likelihood_field", "laser sensor model (nav2 likelihood_field); only the "
+                                    "likelihood field reads unknown space as unknown (unknown_occupancy), the beam "
+                                    "model scores it as nav2 does (docs/mcl.md, Partial maps)",
                                     choices=LASER_MODEL_TYPES)
     z_hit: float = setting(0.5, "weight of the hit component of the laser model (nav2 0.5)", low=0.0, high=_BIG)
     z_short: float = setting(0.05, "weight of the short-reading component, beam model (nav2 0.05)", low=0.0, high=_BIG)
