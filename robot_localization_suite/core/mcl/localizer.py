@@ -182,11 +182,11 @@ class MonteCarloLocalizer:
         # Load the compiled kernels now (map setup), not in the first update.
         if isinstance(self._sensor, LikelihoodFieldModel):
             self._sensor.load_kernels()
+            if s.do_beamskip:
+                self._sensor.beam_agreement(np.zeros((1, 3)), np.ones(1), np.zeros(1), np.ones(1),
+                                            distance=s.beam_skip_distance)
         else:
             self._sensor.log_likelihood(np.zeros((1, 3)), np.zeros(1), np.ones(1), max_range=10.0)
-        if isinstance(self._sensor, LikelihoodFieldModel) and s.do_beamskip:
-            self._sensor.beam_agreement(np.zeros((1, 3)), np.ones(1), np.zeros(1), np.ones(1),
-                                        distance=s.beam_skip_distance)
         if had_map and self._pending is None:
             last = self.last_estimate
             if last is not None and last.status == LocalizerStatus.LOCALIZED:

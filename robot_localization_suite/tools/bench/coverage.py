@@ -112,8 +112,8 @@ def replay_scores(record: RunRecord, series: dict[str, Any], coverage: ScanCover
     if record.containment is not None and record.containment_stamps is not None:
         contained = np.asarray(record.containment, dtype=bool)
         contained_coverage = _coverage_at(coverage, np.asarray(record.containment_stamps, dtype=np.float64))
-        contained_needed = np.asarray(record.containment_needed if record.containment_needed is not None
-                                      else np.full(contained.size, np.nan), dtype=np.float64)
+        if record.containment_needed is not None:
+            contained_needed = np.asarray(record.containment_needed, dtype=np.float64)
     return OutputScores("replay", counted, correct, np.asarray(series["fine"], dtype=bool),
                         _coverage_at(coverage, record.stamps), fixed=fix is not None,
                         localized=np.asarray([s == "LOCALIZED" for s in record.statuses], dtype=bool),
@@ -145,8 +145,9 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
     ``runs_without_fix``; a set method's runs also ``containment_rate``, ``containment_rate_covered``
     and ``containment_outputs_covered`` (every output with a set, from the first), and where it declares
     the share of the scan its bound assumes explained, ``containment_rate_bound_held`` and
-    ``containment_outputs_bound_held``: over the outputs whose scan the map explains that well at the truth. Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``,
-    ``recall_at_k``, ``fixes_covered``, ``global_correct_rate_covered``, ``map_coverage_median``.
+    ``containment_outputs_bound_held``: over the outputs whose scan the map explains that well at the truth.
+    Global fixes: ``fixes``, ``global_correct_rate``, ``global_fine_rate``, ``recall_at_k``, ``fixes_covered``,
+    ``global_correct_rate_covered``, ``map_coverage_median``.
     """
     if not runs:
         return {}
@@ -183,23 +184,19 @@ def pooled_fields(runs: Sequence[OutputScores]) -> dict[str, Any]:
         "map_coverage_median": median,
         "runs_without_fix": sum(not r.fixed for r in runs),
     }
-    sets_and_coverage = [(r.contained, r.contained_coverage) for r in runs
-                         if r.contained is not None and r.contained_coverage is not None]
-    if sets_and_coverage:
-        sets = metrics.coverage_rates(np.concatenate([c for c, _ in sets_and_coverage]),
-                                      np.concatenate([v for _, v in sets_and_coverage]))
+    set_runs = [r for r in runs if r.contained is not None and r.contained_coverage is not None]
+    if set_runs:
+        contained = np.concatenate([r.contained for r in set_runs if r.contained is not None])
+        set_coverage = np.concatenate([r.contained_coverage for r in set_runs if r.contained_coverage is not None])
+        sets = metrics.coverage_rates(contained, set_coverage)
         fields.update(containment_rate=sets["correct_rate"], containment_rate_covered=sets["correct_rate_covered"],
                       containment_outputs_covered=sets["outputs_covered"])
-        needed = [r.contained_needed for r in runs if r.contained is not None and r.contained_coverage is not None]
-        if all(n is not None for n in needed):
-            contained = np.concatenate([c for c, _ in sets_and_coverage])
-            coverage_of_sets = np.concatenate([v for _, v in sets_and_coverage])
-            needed_all = np.concatenate([n for n in needed if n is not None])
-            declared = np.isfinite(needed_all)
-            if declared.any():
-                held = declared & np.isfinite(coverage_of_sets) & (coverage_of_sets >= needed_all - 1e-9)
-                fields.update(containment_rate_bound_held=_rate(contained[held]),
-                              containment_outputs_bound_held=int(held.sum()))
+        needed = np.concatenate([r.contained_needed if r.contained_needed is not None
+                                 else np.full(len(r.contained), np.nan) for r in set_runs if r.contained is not None])
+        if np.isfinite(needed).any():  # the method declares what its bound assumes
+            held = np.isfinite(needed) & np.isfinite(set_coverage) & (set_coverage >= needed - 1e-9)
+            fields.update(containment_rate_bound_held=_rate(contained[held]),
+                          containment_outputs_bound_held=int(held.sum()))
     return fields
 
 
