@@ -229,6 +229,8 @@ class MonteCarloLocalizer:
             return None
         gate = self.odometry
         odom = gate.at(scan.stamp)
+        tracked = None if self.last_estimate is None else compose(self.last_estimate.pose,
+                                                                   self.odometry_since_update(odom))
         moved = False
         if odom is not None:
             if gate.reference is None:
@@ -248,7 +250,7 @@ class MonteCarloLocalizer:
             gate.mark_updated(odom)
         else:
             gate.mark_updated(gate.reference)
-        return self._update(scan.stamp, beams)
+        return self._update(scan.stamp, beams, tracked)
 
     def contradicts(self, scan: Scan, odom: NDArray[np.float64] | None) -> bool:
         """Whether ``scan``, at odometry ``odom`` (no update due), contradicts the filter: its fit at the last
@@ -480,12 +482,14 @@ class MonteCarloLocalizer:
                 high = middle
         return max(low, 1e-3)
 
-    def _scan_log_likelihood(self, poses: NDArray[np.float64], beams: _Beams) -> NDArray[np.float64]:
-        """Per pose, the summed log-likelihood of the beams; a converged filter reads unknown space as unknown."""
+    def _scan_log_likelihood(self, poses: NDArray[np.float64], beams: _Beams, *,
+                             credit: bool = True) -> NDArray[np.float64]:
+        """Per pose, the summed log-likelihood of the beams; a converged filter reads unknown space as unknown
+        (unless ``credit`` is false: then only what the map holds counts, as for a pose the cloud never held)."""
         assert self._sensor is not None
         if isinstance(self._sensor, LikelihoodFieldModel):
             return self._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=beams.max_range,
-                                               partial_map=self._converged())
+                                               partial_map=credit and self._converged())
         return self._sensor.log_likelihood(poses, beams.angles, beams.ranges, max_range=beams.max_range)
 
     def _converged(self) -> bool:
@@ -494,6 +498,17 @@ class MonteCarloLocalizer:
         spread by the motion model alone since it was last LOCALIZED. A cloud spread otherwise (a global start,
         an injection) reads unknown space as nav2 does, so that it is not drawn into the unexplored parts."""
         return self._compact or (self.settings.recovery_unknown_neutral and self._moved_since_localized)
+
+    def _elsewhere(self, tracked: NDArray[np.float64] | None) -> NDArray[np.bool_] | None:
+        """The particles to score without the unknown-space credit (None: none): once the cloud holds particles
+        the motion model did not put there (an injection), those apart from the ``tracked`` hypothesis
+        (``rival_separation`` away or turned 45 degrees, as rivals). The credit says that unknown space
+        contradicts no pose; a draw amid unexplored space earns it for every beam and would outscore the
+        track on a poorly explained scan (docs/mcl.md, "The campus")."""
+        if tracked is None or self._moved_since_localized:
+            return None
+        apart = self.rivals.apart_from(self.particles, tracked)
+        return apart if apart.any() else None
 
     def _skip_unexplained_beams(self, beams: _Beams) -> tuple[_Beams, _Beams | None]:
         """nav2's beam skipping: set aside the beams that few particles place near a mapped obstacle.
@@ -517,7 +532,9 @@ class MonteCarloLocalizer:
         return (_Beams(beams.angles[keep], beams.ranges[keep], beams.max_range),
                 _Beams(beams.angles[~keep], beams.ranges[~keep], beams.max_range))
 
-    def _update(self, stamp: float, beams: _Beams) -> Estimate:
+    def _update(self, stamp: float, beams: _Beams, tracked: NDArray[np.float64] | None = None) -> Estimate:
+        """Weigh, judge and resample the moved cloud on ``beams``; ``tracked``: the last estimate moved by the
+        odometry since, the hypothesis the unknown-space credit belongs to (:meth:`_elsewhere`)."""
         s = self.settings
         assert self._sensor is not None and self.grid_map is not None
         if self._draw_at_first_scan:
@@ -530,13 +547,20 @@ class MonteCarloLocalizer:
         self._scored_with_credit = self._converged() and isinstance(self._sensor, LikelihoodFieldModel) \
             and s.unknown_occupancy > 0.0
         partial: PartialMapScores | None = None
+        elsewhere = self._elsewhere(tracked) if self._scored_with_credit else None
         if self._scored_with_credit and s.recovery_unknown_neutral:
             assert isinstance(self._sensor, LikelihoodFieldModel)
             partial = self._sensor.partial_log_likelihood(self.particles, kept.angles, kept.ranges,
                                                           max_range=kept.max_range)
+            if elsewhere is not None:  # judged by the map alone: every beam judged, none credited
+                partial.total[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], kept, credit=False)
+                partial.unjudged_sum[elsewhere] = 0.0
+                partial.unjudged_count[elsewhere] = 0
             log_likelihood = partial.total.copy()
         else:
             log_likelihood = self._scan_log_likelihood(self.particles, kept)
+            if elsewhere is not None:
+                log_likelihood[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], kept, credit=False)
         floor = self._sensor.floor_log_likelihood(beams.max_range)
         impossible = ~self._pose_is_possible(self.particles)
         log_likelihood[impossible] = beam_count * floor
@@ -559,7 +583,11 @@ class MonteCarloLocalizer:
         all_beams = log_likelihood
         scan_fit = fit
         if skipped is not None:
-            all_beams = log_likelihood + self._scan_log_likelihood(self.particles, skipped)
+            skipped_scores = self._scan_log_likelihood(self.particles, skipped)
+            if elsewhere is not None:
+                skipped_scores[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], skipped,
+                                                                      credit=False)
+            all_beams = log_likelihood + skipped_scores
             all_beams[impossible] = len(beams.angles) * floor
             scan_fit = float((weights * np.exp(all_beams / len(beams.angles))).sum())
         self._scan_fit_slow.update(scan_fit)
@@ -812,10 +840,12 @@ class MonteCarloLocalizer:
     def _best_fitting_poses(self, count: int, draws: int, beams: _Beams) -> tuple[NDArray[np.float64],
                                                                                 NDArray[np.float64]]:
         """The ``count`` poses of ``draws`` uniform ones over free space that explain ``beams`` best, and their
-        log-likelihoods (sensor resetting, Lenser & Veloso 2000; docs/mcl.md)."""
+        log-likelihoods (sensor resetting, Lenser & Veloso 2000; docs/mcl.md). Judged by what the map holds:
+        with the unknown-space credit the best draws would be places where every end point falls into open
+        unknown space, which no scan contradicts (docs/mcl.md, "The campus")."""
         assert self.grid_map is not None
         candidates = self.grid_map.sample_free_poses(draws, self.rng)
-        scores = self._scan_log_likelihood(candidates, beams)
+        scores = self._scan_log_likelihood(candidates, beams, credit=False)
         best = np.argpartition(-scores, count - 1)[:count]
         return candidates[best], scores[best]
 

@@ -69,8 +69,12 @@ class RivalTracker:
 
     def apart(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
         """Whether poses ``a`` and ``b`` are different hypotheses (``separation`` apart, or turned 45 degrees)."""
-        return bool(math.hypot(a[0] - b[0], a[1] - b[1]) > self.separation
-                    or abs(float(angle_difference(a[2], b[2]))) > _SEPARATE_HEADING)
+        return bool(self.apart_from(np.asarray(a, dtype=np.float64)[None, :], b)[0])
+
+    def apart_from(self, poses: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per pose of ``poses`` ``(N, 3)``, whether it is a different hypothesis from ``pose`` (:meth:`apart`)."""
+        return np.asarray((np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) > self.separation)
+                          | (np.abs(angle_difference(poses[:, 2], pose[2])) > _SEPARATE_HEADING))
 
     def predict(self, model: OdometryMotionModel, previous_odom: NDArray[np.float64],
                 current_odom: NDArray[np.float64], rng: np.random.Generator) -> None:
