@@ -229,8 +229,6 @@ class MonteCarloLocalizer:
             return None
         gate = self.odometry
         odom = gate.at(scan.stamp)
-        tracked = None if self.last_estimate is None else compose(self.last_estimate.pose,
-                                                                   self.odometry_since_update(odom))
         moved = False
         if odom is not None:
             if gate.reference is None:
@@ -239,6 +237,9 @@ class MonteCarloLocalizer:
                 moved = gate.moved(odom)
         if not (moved or gate.forced or self._contradicted(beams, odom)):
             return None
+        # the hypothesis the unknown-space credit belongs to, before the gate moves on (_elsewhere)
+        tracked = None if self.last_estimate is None else compose(self.last_estimate.pose,
+                                                                   self.odometry_since_update(odom))
         # Every update moves the particles by the odometry since the last one, as nav2 does for a forced
         # update: one forced or contradicted below the thresholds (a robot turning in place) must not weigh
         # a scan at poses the robot has left (docs/mcl.md, "Standing still").
@@ -546,21 +547,9 @@ class MonteCarloLocalizer:
         beam_count = len(kept.angles)
         self._scored_with_credit = self._converged() and isinstance(self._sensor, LikelihoodFieldModel) \
             and s.unknown_occupancy > 0.0
-        partial: PartialMapScores | None = None
         elsewhere = self._elsewhere(tracked) if self._scored_with_credit else None
-        if self._scored_with_credit and s.recovery_unknown_neutral:
-            assert isinstance(self._sensor, LikelihoodFieldModel)
-            partial = self._sensor.partial_log_likelihood(self.particles, kept.angles, kept.ranges,
-                                                          max_range=kept.max_range)
-            if elsewhere is not None:  # judged by the map alone: every beam judged, none credited
-                partial.total[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], kept, credit=False)
-                partial.unjudged_sum[elsewhere] = 0.0
-                partial.unjudged_count[elsewhere] = 0
-            log_likelihood = partial.total.copy()
-        else:
-            log_likelihood = self._scan_log_likelihood(self.particles, kept)
-            if elsewhere is not None:
-                log_likelihood[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], kept, credit=False)
+        log_likelihood, partial = self._score_cloud(
+            kept, elsewhere, with_unjudged=self._scored_with_credit and s.recovery_unknown_neutral)
         floor = self._sensor.floor_log_likelihood(beams.max_range)
         impossible = ~self._pose_is_possible(self.particles)
         log_likelihood[impossible] = beam_count * floor
@@ -583,11 +572,7 @@ class MonteCarloLocalizer:
         all_beams = log_likelihood
         scan_fit = fit
         if skipped is not None:
-            skipped_scores = self._scan_log_likelihood(self.particles, skipped)
-            if elsewhere is not None:
-                skipped_scores[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], skipped,
-                                                                      credit=False)
-            all_beams = log_likelihood + skipped_scores
+            all_beams = log_likelihood + self._score_cloud(skipped, elsewhere, with_unjudged=False)[0]
             all_beams[impossible] = len(beams.angles) * floor
             scan_fit = float((weights * np.exp(all_beams / len(beams.angles))).sum())
         self._scan_fit_slow.update(scan_fit)
@@ -618,6 +603,32 @@ class MonteCarloLocalizer:
         self.counters.updates += 1
         self.last_estimate = estimate
         return estimate
+
+    def _score_cloud(self, beams: _Beams, elsewhere: NDArray[np.bool_] | None, *,
+                     with_unjudged: bool) -> tuple[NDArray[np.float64], PartialMapScores | None]:
+        """Each particle's summed beam log-likelihood, scored once: as :meth:`_scan_log_likelihood`, and the
+        ``elsewhere`` ones (:meth:`_elsewhere`) without the unknown-space credit, every beam judged. With
+        ``with_unjudged``, also the credited part (``PartialMapScores``; the log-likelihoods are a copy)."""
+        held = self.particles if elsewhere is None else self.particles[~elsewhere]
+        partial: PartialMapScores | None = None
+        if with_unjudged:
+            assert isinstance(self._sensor, LikelihoodFieldModel)
+            partial = self._sensor.partial_log_likelihood(held, beams.angles, beams.ranges, max_range=beams.max_range)
+            held_scores = partial.total
+        else:
+            held_scores = self._scan_log_likelihood(held, beams)
+        if elsewhere is None:
+            return (held_scores.copy() if partial is not None else held_scores), partial
+        count = len(self.particles)
+        log_likelihood = np.empty(count)
+        log_likelihood[~elsewhere] = held_scores
+        log_likelihood[elsewhere] = self._scan_log_likelihood(self.particles[elsewhere], beams, credit=False)
+        if partial is not None:  # the elsewhere ones: every beam judged, none credited
+            unjudged_sum, unjudged_count = np.zeros(count), np.zeros(count, dtype=np.int64)
+            unjudged_sum[~elsewhere] = partial.unjudged_sum
+            unjudged_count[~elsewhere] = partial.unjudged_count
+            partial = PartialMapScores(log_likelihood.copy(), unjudged_sum, unjudged_count)
+        return log_likelihood, partial
 
     @staticmethod
     def _judged_fit(weights: NDArray[np.float64], partial: PartialMapScores, beam_count: int, floor: float,
