@@ -19,11 +19,13 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import LocalizationSuiteError
 from ..core.settings import Settings, help_text
+from .deadline import SignalDeadline
 
 __all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "stopping", "StopRequest"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-SLOW_STOP_REPORT_S = 5.0  # a stop slower than this prints every thread's stack (where it hangs)
+SLOW_STOP_REPORT_S = 2.5  # a stop slower than this prints every thread's stack (where it hangs)
+STOP_DEADLINE_S = 4.0  # then the stop signal ends it (before ros2 launch's SIGTERM at 5 s, rls_run's at 10 s)
 
 
 class StopRequest:
@@ -45,6 +47,11 @@ class StopRequest:
     def requested(self) -> bool:
         return self.signal is not None
 
+    @property
+    def signum(self) -> int:
+        """The signal that asked for the stop; SIGINT when none did (a shutdown transition, an error)."""
+        return int(signal.Signals[self.signal]) if self.signal else int(signal.SIGINT)
+
 
 def init_ros(args: Sequence[str] | None = None) -> StopRequest:
     """``rclpy.init`` with Python's own stop: SIGINT and SIGTERM set the returned ``StopRequest``.
@@ -61,14 +68,17 @@ def init_ros(args: Sequence[str] | None = None) -> StopRequest:
 
 
 @contextmanager
-def stopping() -> Iterator[None]:
-    """Around a node's clean-up: a further SIGINT or SIGTERM ends the process (the default action),
-    and a clean-up still running after ``SLOW_STOP_REPORT_S`` prints every thread's stack to stderr."""
+def stopping(signum: int = signal.SIGINT) -> Iterator[None]:
+    """Around a node's clean-up: a further SIGINT or SIGTERM ends the process (the default action); a
+    clean-up still running after ``SLOW_STOP_REPORT_S`` prints every thread's stack to stderr, and one
+    still running after ``STOP_DEADLINE_S`` is ended by ``signum`` (the signal that asked for the stop),
+    as a second Ctrl-C would: the middleware's teardown can hang holding the GIL (nodes/deadline.py)."""
     for number in STOP_SIGNALS:
         signal.signal(number, signal.SIG_DFL)
     faulthandler.dump_traceback_later(SLOW_STOP_REPORT_S)
     try:
-        yield
+        with SignalDeadline(STOP_DEADLINE_S, signum):
+            yield
     finally:
         faulthandler.cancel_dump_traceback_later()
 
@@ -144,7 +154,7 @@ def run_node(
         if rclpy.ok():
             raise
     finally:
-        with stopping():
+        with stopping(stop.signum):
             if node is not None:
                 node.destroy_node()
             rclpy.try_shutdown()

@@ -214,7 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(code)
-        with stopping():
+        with stopping(stop.signum):
             container.close()
             rclpy.try_shutdown()
     return code
