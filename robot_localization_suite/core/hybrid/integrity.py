@@ -32,6 +32,8 @@ from .proposals import Worker
 
 __all__ = ["IntegrityMonitor"]
 
+WAITING = "no box yet"  # on, where its assumptions can hold, but IAL has not answered since the map came
+
 
 class IntegrityMonitor:
     """IAL tracking in a worker thread; :meth:`judge` says whether an estimate may be LOCALIZED.
@@ -54,7 +56,7 @@ class IntegrityMonitor:
         self.limited = False  # the last update stopped bisecting at IAL's limits: boxes coarse, spread unknown
         self._initial: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self.boxes_stamp = math.nan
-        self.off_reason = "no map yet"
+        self.off_reason = "no map yet"  # or WAITING, or why it is off; "" while it judges
         self.updates = 0
 
     def set_map(self, grid_map: GridMap) -> None:
@@ -68,7 +70,7 @@ class IntegrityMonitor:
                 self.off_reason = "the map has unknown space a beam can reach: IAL's range bound cannot hold"
                 return
             self.ial.set_map(grid_map)
-            self.off_reason = "no box yet"
+            self.off_reason = WAITING
 
     @property
     def active(self) -> bool:
@@ -121,9 +123,13 @@ class IntegrityMonitor:
             self.limited = bool(estimate.details.get("limited"))
 
     def judge(self, pose: NDArray[np.float64]) -> tuple[bool, dict[str, Any]]:
-        """Whether ``pose`` (at :attr:`boxes_stamp`) may be LOCALIZED, and details for ``/diagnostics``."""
+        """Whether ``pose`` (at :attr:`boxes_stamp`) may be LOCALIZED, and details for ``/diagnostics``.
+
+        Not before IAL's first boxes on a map where the monitor applies: it has not vouched for anything yet."""
         with self._lock:
             boxes, reason, limited = self.boxes, self.off_reason, self.limited
+        if reason == WAITING:
+            return False, {"integrity": "waiting", "integrity_off_reason": ""}
         if reason or boxes is None:
             return True, {"integrity": "off", "integrity_off_reason": reason}
         lo, hi = boxes[:, :, 0], boxes[:, :, 1]
