@@ -582,7 +582,7 @@ class MonteCarloLocalizer:
         if s.max_rivals > 0 and self._weigh_rivals(beams, prior_log_weights, all_beams, floor):
             weights = normalize_log_weights(self.log_weights)
         effective = float(1.0 / np.sum(weights * weights))  # effective sample size
-        estimate = self._estimate(stamp, weights, fit, beams, effective, tracked)
+        estimate = self._estimate(stamp, weights, fit, beams, effective)
         if s.do_beamskip:
             skipped_count = 0 if skipped is None else len(skipped.angles)
             estimate = replace(estimate, details={**estimate.details, "skipped_beams": skipped_count,
@@ -651,7 +651,7 @@ class MonteCarloLocalizer:
         return float((mass * per_beam).sum() / total), total / beam_count
 
     def _estimate(self, stamp: float, weights: NDArray[np.float64], fit: float, beams: _Beams,
-                  effective: float, tracked: NDArray[np.float64] | None = None) -> Estimate:
+                  effective: float) -> Estimate:
         s = self.settings
         beam_count = len(beams.angles)
         # Dropping every particle lighter than (1 - mass) / N drops at most (1 - mass) of the
@@ -660,10 +660,8 @@ class MonteCarloLocalizer:
         if len(kept) == 0:
             kept = np.array([int(np.argmax(weights))])
         labels, cluster_count = cluster_particles(self.particles[kept])
-        cluster_weights = np.asarray(np.bincount(labels, weights=weights[kept], minlength=cluster_count),
-                                     dtype=np.float64)
-        ranked = self._continuing_first(np.argsort(-cluster_weights, kind="stable"), cluster_weights, labels, kept,
-                                        weights, tracked)
+        cluster_weights = np.bincount(labels, weights=weights[kept], minlength=cluster_count)
+        ranked = np.argsort(-cluster_weights, kind="stable")
         best = int(ranked[0])
         members = kept[labels == best]
         pose, covariance = weighted_pose_statistics(self.particles[members], weights[members])
@@ -680,7 +678,7 @@ class MonteCarloLocalizer:
                                               or self._scan_fit_fast.value >= s.lost_fit_ratio * scan_slow)
         # A rival cluster with ambiguous_cluster_weight is a second hypothesis: no LOCALIZED beside it.
         if s.max_rivals > 0:
-            self._consider_rivals(labels, ranked, cluster_weights, kept, weights, pose)
+            self._consider_rivals(labels, ranked, np.asarray(cluster_weights, dtype=np.float64), kept, weights, pose)
         rivals = len(self.rivals)
         if compact and fit_holds and second_weight < s.ambiguous_cluster_weight and not rivals:
             status = LocalizerStatus.LOCALIZED
@@ -728,30 +726,6 @@ class MonteCarloLocalizer:
                 "vouched": vouched,
             },
         )
-
-    def _continuing_first(self, ranked: NDArray[np.int64], cluster_weights: NDArray[np.float64],
-                          labels: NDArray[np.int64], kept: NDArray[np.int64], weights: NDArray[np.float64],
-                          tracked: NDArray[np.float64] | None) -> NDArray[np.int64]:
-        """The clusters heaviest first, except that among live hypotheses (each at least
-        ``ambiguous_cluster_weight``) the one continuing the last published estimate (``tracked``: moved by the
-        odometry; the same hypothesis as for rivals) comes first: between look-alikes the reported pose stays
-        where it was until the scans rule that place down, instead of following the heavier of two near-equal
-        weights from scan to scan (docs/mcl.md, "The estimate between look-alikes")."""
-        s = self.settings
-        last = self.last_estimate
-        if (tracked is None or last is None or len(ranked) < 2
-                or last.status not in (LocalizerStatus.LOCALIZED, LocalizerStatus.AMBIGUOUS)
-                or cluster_weights[ranked[1]] < s.ambiguous_cluster_weight):
-            return ranked
-        for position, cluster in enumerate(ranked):
-            if cluster_weights[cluster] < s.ambiguous_cluster_weight:
-                break
-            members = kept[labels == cluster]
-            mean, _ = weighted_pose_statistics(self.particles[members], weights[members])
-            if not self.rivals.apart(mean, tracked):
-                return ranked if position == 0 else np.concatenate([ranked[position:position + 1],
-                                                                    np.delete(ranked, position)])
-        return ranked
 
     def _vouched_for(self, pose: NDArray[np.float64], beams: _Beams) -> bool:
         """Whether the map vouches for a LOCALIZED ``pose``: it continues the last vouched pose (moved by the
