@@ -106,3 +106,23 @@ def test_a_short_soak_writes_its_table_json_and_plot(tmp_path: Path, ros_domain_
         assert mcl["latency"][key] is not None and math.isfinite(mcl["latency"][key]), key
     assert mcl["inputs"]["published"] > 0 and mcl["inputs"]["processed"] > 0
     assert "| mcl_baseline |" in (out / "soak.md").read_text()
+
+
+def test_a_soak_whose_dds_teardown_hangs_has_written_its_results_and_ends(tmp_path: Path, ros_domain_id: int) -> None:
+    """The middleware's teardown comes after every result is on disk, under the stop deadline
+    (nodes/deadline.py): a monitor node whose destruction hangs holding the GIL loses nothing."""
+    out = tmp_path / "soak"
+    code = f"""
+import ctypes, sys
+from robot_localization_suite.tools.soak import probes
+probes.StampMonitor.close = lambda self: ctypes.PyDLL(None).pause()  # rmw_destroy_node that never returns
+from robot_localization_suite.tools.soak.cli import main
+sys.exit(main(["--minutes", "0.3", "--warmup", "5", "--sample-period", "5", "--localizers", "mcl_baseline",
+               "--out", {str(out)!r}, "--domain-id", "{ros_domain_id}"]))
+"""
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert run.returncode == -2, run.stdout[-3000:] + run.stderr[-3000:]  # ended by the deadline's SIGINT
+    assert "Timeout (" in run.stderr and "<lambda>" in run.stderr  # where it hung, printed first
+    for name in ("soak.md", "soak.json", "soak.png", "stamps.npz", "nodes.log"):
+        assert (out / name).stat().st_size > 0, name
+    assert json.loads((out / "soak.json").read_text())["localizers"]["mcl_baseline"]["poses"] > 0

@@ -332,6 +332,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from ...nodes.common import stopping
+
     log_file = (out / "nodes.log").open("w")
 
     def node_output(name: str, line: str) -> None:
@@ -348,18 +350,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     soak = Soak(args, localizers, monitor, stop, say)
     load_start = os.getloadavg()
     try:
-        result = run_nodes(specs, domain_id=domain_id, stop=stop, output=node_output, log=say,
-                           on_started=soak.on_started, transition_timeout=args.ready_timeout)
-    except RunError as exc:
-        print(f"rls_soak: {exc}", file=sys.stderr)
-        return 2
+        try:
+            result = run_nodes(specs, domain_id=domain_id, stop=stop, output=node_output, log=say,
+                               on_started=soak.on_started, transition_timeout=args.ready_timeout)
+        except RunError as exc:
+            print(f"rls_soak: {exc}", file=sys.stderr)
+            return 2
+        finally:
+            stop.set()
+            soak.join()
+            monitor.stop()
+            log_file.close()
+        return _write_results(args, out, soak, monitor, localizers, scenario, tour, laser_hz, camera_rate,
+                              load_start, result, say)
     finally:
-        stop.set()
-        soak.join()
-        monitor.stop()
-        rclpy.try_shutdown()
-        log_file.close()
+        # The middleware's teardown last, once every result is on disk: it can hang (nodes/deadline.py).
+        with stopping():
+            monitor.close()
+            rclpy.try_shutdown()
 
+
+def _write_results(args: argparse.Namespace, out: Path, soak: Soak, monitor: StampMonitor, localizers: list[str],
+                   scenario: Any, tour: Any, laser_hz: float, camera_rate: float | None,
+                   load_start: tuple[float, float, float], result: Any, say: Any) -> int:
+    """soak.md, soak.json, stamps.npz and soak.png, the table on stdout; 1 if the run did not reach its end."""
     summary = _summary(args, soak, localizers, scenario, tour, laser_hz, camera_rate, load_start, result)
     (out / "soak.md").write_text(_markdown(summary))
     write_json(out / "soak.json", summary, soak.series)

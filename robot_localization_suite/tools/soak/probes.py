@@ -111,10 +111,14 @@ class StampMonitor:
         np.savez_compressed(path, **data)
 
     def stop(self) -> None:
+        """Stop receiving; what was received stays readable. :meth:`close` destroys the node."""
         # Stop spinning before the node goes: a spinning thread left at exit aborts the interpreter.
         self._executor.shutdown(timeout_sec=2.0)
         if self._thread.is_alive():
             self._thread.join(timeout=5.0)
+
+    def close(self) -> None:
+        """Destroy the node (the middleware's part of the teardown, which can hang: nodes/deadline.py)."""
         self.node.destroy_node()
 
 
