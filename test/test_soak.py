@@ -110,7 +110,7 @@ def test_a_short_soak_writes_its_table_json_and_plot(tmp_path: Path, ros_domain_
 
 def test_a_soak_whose_dds_teardown_hangs_has_written_its_results_and_ends(tmp_path: Path, ros_domain_id: int) -> None:
     """The middleware's teardown comes after every result is on disk, under the stop deadline
-    (nodes/deadline.py): a monitor node whose destruction hangs holding the GIL loses nothing."""
+    (ros/stopping.py): a monitor node whose destruction hangs holding the GIL loses nothing."""
     out = tmp_path / "soak"
     code = f"""
 import ctypes, sys

@@ -1,4 +1,4 @@
-"""A node's stop cannot hang (nodes/common.py ``stopping``, nodes/deadline.py): a clean-up stuck in C code
+"""A node's stop cannot hang (ros/stopping.py): a clean-up stuck in C code
 that holds the GIL, as the middleware's teardown can be, is ended by the stop signal after the deadline."""
 
 from __future__ import annotations
@@ -11,8 +11,7 @@ import time
 
 import pytest
 
-from robot_localization_suite.nodes.common import SLOW_STOP_REPORT_S, STOP_DEADLINE_S
-from robot_localization_suite.nodes.deadline import SignalDeadline
+from robot_localization_suite.ros.stopping import SLOW_STOP_REPORT_S, STOP_DEADLINE_S, SignalDeadline
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="POSIX timers (timer_create)")
 
@@ -29,7 +28,7 @@ def test_a_clean_up_stuck_holding_the_gil_is_ended_by_the_stop_signal_after_the_
     # pause() through PyDLL keeps the GIL: no Python thread (no threading.Timer) could end this.
     run, elapsed = _run(f"""
         import ctypes
-        from robot_localization_suite.nodes.common import stopping
+        from robot_localization_suite.ros.stopping import stopping
         print("stopping", flush=True)
         with stopping({int(signum)}):
             ctypes.PyDLL(None).pause()
@@ -46,7 +45,7 @@ def test_a_clean_up_stuck_holding_the_gil_is_ended_by_the_stop_signal_after_the_
 def test_a_clean_up_that_ends_in_time_disarms_the_deadline() -> None:
     run, _ = _run("""
         import time
-        from robot_localization_suite.nodes.deadline import SignalDeadline
+        from robot_localization_suite.ros.stopping import SignalDeadline
         with SignalDeadline(0.3) as deadline:
             print("armed", deadline.armed, flush=True)
         time.sleep(1.0)

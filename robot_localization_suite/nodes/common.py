@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import faulthandler
 import shutil
 import signal
 import sys
 import traceback
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
@@ -19,13 +17,9 @@ from rclpy.signals import SignalHandlerOptions
 
 from ..core.errors import LocalizationSuiteError
 from ..core.settings import Settings, help_text
-from .deadline import SignalDeadline
+from ..ros.stopping import STOP_SIGNALS, stopping
 
-__all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "stopping", "StopRequest"]
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-SLOW_STOP_REPORT_S = 2.5  # a stop slower than this prints every thread's stack (where it hangs)
-STOP_DEADLINE_S = 4.0  # then the stop signal ends it (before ros2 launch's SIGTERM at 5 s, rls_run's at 10 s)
+__all__ = ["run_node", "guarded", "help_parser", "invocation", "init_ros", "StopRequest"]
 
 
 class StopRequest:
@@ -65,22 +59,6 @@ def init_ros(args: Sequence[str] | None = None) -> StopRequest:
     for number in STOP_SIGNALS:
         signal.signal(number, stop)
     return stop
-
-
-@contextmanager
-def stopping(signum: int = signal.SIGINT) -> Iterator[None]:
-    """Around a node's clean-up: a further SIGINT or SIGTERM ends the process (the default action); a
-    clean-up still running after ``SLOW_STOP_REPORT_S`` prints every thread's stack to stderr, and one
-    still running after ``STOP_DEADLINE_S`` is ended by ``signum`` (the signal that asked for the stop),
-    as a second Ctrl-C would: the middleware's teardown can hang holding the GIL (nodes/deadline.py)."""
-    for number in STOP_SIGNALS:
-        signal.signal(number, signal.SIG_DFL)
-    faulthandler.dump_traceback_later(SLOW_STOP_REPORT_S)
-    try:
-        with SignalDeadline(STOP_DEADLINE_S, signum):
-            yield
-    finally:
-        faulthandler.cancel_dump_traceback_later()
 
 
 def guarded(node: Node, callback: Callable[..., Any], what: str) -> Callable[..., Any]:

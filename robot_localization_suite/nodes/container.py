@@ -38,7 +38,8 @@ from rclpy.executors import (
 )
 from rclpy.node import Node
 
-from .common import init_ros, stopping
+from ..ros.stopping import stopping
+from .common import init_ros
 
 __all__ = ["Container", "ContainerExecutor", "main"]
 

@@ -332,7 +332,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    from ...nodes.common import stopping
+    from ...ros.stopping import stopping
 
     log_file = (out / "nodes.log").open("w")
 
@@ -364,7 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _write_results(args, out, soak, monitor, localizers, scenario, tour, laser_hz, camera_rate,
                               load_start, result, say)
     finally:
-        # The middleware's teardown last, once every result is on disk: it can hang (nodes/deadline.py).
+        # The middleware's teardown last, once every result is on disk: it can hang (ros/stopping.py).
         with stopping():
             monitor.close()
             rclpy.try_shutdown()

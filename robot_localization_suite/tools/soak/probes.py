@@ -118,7 +118,7 @@ class StampMonitor:
             self._thread.join(timeout=5.0)
 
     def close(self) -> None:
-        """Destroy the node (the middleware's part of the teardown, which can hang: nodes/deadline.py)."""
+        """Destroy the node (the middleware's part of the teardown, which can hang: ros/stopping.py)."""
         self.node.destroy_node()
 
 

@@ -1,4 +1,4 @@
-"""A stop that cannot hang: the kernel sends this process a signal once a deadline has passed.
+"""A stop that cannot hang: the kernel sends this process a signal once a deadline has passed (nodes, rls_soak).
 
 rclpy holds the GIL while the middleware destroys a node or shuts a context down (checked with gdb:
 ``PyGILState_Check()`` is 1 in ``rmw_destroy_node`` and ``rcl_shutdown``), and that teardown now and then
@@ -10,11 +10,18 @@ kernel delivers the signal whatever the interpreter is doing, and with its defau
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import signal
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import TracebackType
 
-__all__ = ["SignalDeadline"]
+__all__ = ["SignalDeadline", "stopping", "STOP_SIGNALS", "SLOW_STOP_REPORT_S", "STOP_DEADLINE_S"]
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+SLOW_STOP_REPORT_S = 2.5  # a stop slower than this prints every thread's stack (where it hangs)
+STOP_DEADLINE_S = 4.0  # then the stop signal ends it (before ros2 launch's SIGTERM at 5 s, rls_run's at 10 s)
 
 _CLOCK_MONOTONIC = 1
 _SIGEV_SIGNAL = 0
@@ -87,3 +94,19 @@ class SignalDeadline:
         if self.armed and self._libc is not None:
             self._libc.timer_delete(self._timer)  # deleting an armed timer disarms it
             self.armed = False
+
+
+@contextmanager
+def stopping(signum: int = signal.SIGINT) -> Iterator[None]:
+    """Around a process's clean-up: a further SIGINT or SIGTERM ends the process (the default action); a
+    clean-up still running after ``SLOW_STOP_REPORT_S`` prints every thread's stack to stderr, and one
+    still running after ``STOP_DEADLINE_S`` is ended by ``signum`` (the signal that asked for the stop),
+    as a second Ctrl-C would: the middleware's teardown can hang holding the GIL (above)."""
+    for number in STOP_SIGNALS:
+        signal.signal(number, signal.SIG_DFL)
+    faulthandler.dump_traceback_later(SLOW_STOP_REPORT_S)
+    try:
+        with SignalDeadline(STOP_DEADLINE_S, signum):
+            yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
