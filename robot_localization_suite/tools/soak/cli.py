@@ -16,7 +16,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -372,7 +372,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _write_results(args: argparse.Namespace, out: Path, soak: Soak, monitor: StampMonitor, localizers: list[str],
                    scenario: Any, tour: Any, laser_hz: float, camera_rate: float | None,
-                   load_start: tuple[float, float, float], result: Any, say: Any) -> int:
+                   load_start: tuple[float, float, float], result: Any, say: Callable[[str], None]) -> int:
     """soak.md, soak.json, stamps.npz and soak.png, the table on stdout; 1 if the run did not reach its end."""
     summary = _summary(args, soak, localizers, scenario, tour, laser_hz, camera_rate, load_start, result)
     (out / "soak.md").write_text(_markdown(summary))
