@@ -412,6 +412,49 @@ def test_driving_to_and_fro_where_the_scans_match_a_twin_place_injects_nothing(c
     assert all(pose_error(estimate.pose, pose)[0] < 0.3 for pose, estimate in outputs)
 
 
+@pytest.mark.parametrize("where_mapped", [True, False])
+def test_a_robot_tracked_into_unexplored_space_is_not_taken_by_a_mapped_look_alike(cache: Path,
+                                                                                   where_mapped: bool) -> None:
+    """The twin corridor with x 3-6 unexplored (unknown, open to the free space): the robot is tracked there and a
+    source names the twin of the truth, where the map explains the scan. Counting only the beams the map can judge
+    at the filter's place, nothing builds up; counting every beam, the mapped look-alike outscores the unknown space
+    and takes the filter, which then says LOCALIZED metres off (honest maps of real logs, docs/hybrid.md)."""
+    world = _twin_corridor()
+    data = world.data.copy()
+    data[:, 60:120] = -1
+    unexplored = GridMap(data, world.resolution, world.origin)
+    range_m = 2.5
+    truth = [np.array([4.0 + 0.1 * k, 1.5, 0.0]) for k in range(12)]
+
+    def twin_of_the_truth(scan: Scan) -> Estimate:
+        pose = truth[int(round(scan.stamp))]
+        return _fake(scan.stamp, np.array([[12.0 - pose[0], 3.0 - pose[1], math.pi]]))
+
+    settings = _settings(cache, max_range=range_m, wait_for_workers=True, switch_min_explained=0.0,
+                         evidence_where_mapped=where_mapped)
+    hybrid = HybridLocalizer(settings, sources=[ProposalSource("twin", twin_of_the_truth)])
+    hybrid.set_map(unexplored)
+    rng = np.random.default_rng(0)
+    hybrid.set_initial_pose(truth[0], TIGHT)
+    odometry = np.zeros(3)
+    outputs = []
+    for k, pose in enumerate(truth):
+        if k:
+            odometry = compose(odometry, relative(truth[k - 1], pose))
+        hybrid.request_nomotion_update()
+        hybrid.on_odometry(float(k), odometry)
+        estimate = hybrid.on_scan(_corridor_scan(world, pose, float(k), range_m, rng))
+        assert estimate is not None
+        outputs.append((pose_error(estimate.pose, pose)[0], estimate))
+    hybrid.close()
+    injected = any(estimate.details.get("injected") for _, estimate in outputs)
+    if where_mapped:
+        assert not injected and all(error < 0.3 for error, _ in outputs)
+    else:
+        assert injected and any(error > 1.0 and estimate.status is LocalizerStatus.LOCALIZED
+                                for error, estimate in outputs)
+
+
 # -- the camera cue -----------------------------------------------------------------------------------
 CORRIDOR_PLACES = [(x, 1.5) for x in (4.0, 4.6, 5.2, 5.8, 6.4, 7.0, 7.6, 8.2)]  # symmetric about x = 6.1
 

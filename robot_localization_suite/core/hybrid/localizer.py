@@ -449,8 +449,15 @@ class HybridLocalizer:
             return None
         delta = self.mcl.odometry_since_update(odom)
         predicted = compose(last.pose, delta)
-        own = self._log_odds(self.mcl.scan_fit(predicted[None, :], scan))
-        scores = np.nan_to_num(np.concatenate([own, self._log_odds(fits)]), nan=-math.inf)
+        scored, share = scan, 1.0
+        if s.evidence_where_mapped:
+            judged, share = self._mapped_at(scan, predicted)
+            if share == 0.0:
+                return None  # the map judges none of the scan at the filter's place: no evidence either way
+            if share < 1.0:  # every place scored on the beams the map judges at the filter's place
+                scored, fits = judged, self.mcl.scan_fit(pool, judged)
+        own = self._log_odds(self.mcl.scan_fit(predicted[None, :], scored))
+        scores = share * np.nan_to_num(np.concatenate([own, self._log_odds(fits)]), nan=-math.inf)
         if images:
             scores = scores + self._camera_evidence(np.vstack([predicted[None, :], pool]), odom, images)
         back = compose(pool, inverse(delta))
@@ -466,6 +473,24 @@ class HybridLocalizer:
         if not outside.any() or not np.isfinite(advantage[outside]).any():
             return None
         return float(advantage[outside].max()), advantage, outside, back
+
+    def _mapped_at(self, scan: Scan, pose: NDArray[np.float64]) -> tuple[Scan, float]:
+        """The hits of ``scan`` whose end points seen from ``pose`` the map can judge, as a scan, and their share of
+        the hits (1 without a hit): all but those in unknown space a laser could see into (``GridMap.open_unknown``,
+        the map's unexplored parts; off the map when that space is open). An end point in unknown space sealed off
+        by walls, or on a known cell, says the pose is wrong or right."""
+        assert self.grid_map is not None
+        hits = np.flatnonzero(scan.hit_mask)
+        if len(hits) == 0:
+            return scan, 1.0
+        open_unknown, open_outside = self.grid_map.open_unknown()
+        cells = self.grid_map.world_to_cell(scan.hit_endpoints(pose))
+        on_map = self.grid_map.in_bounds(cells)
+        known = np.full(len(hits), not open_outside)
+        known[on_map] = ~open_unknown[cells[on_map, 1], cells[on_map, 0]]
+        keep = hits[known]
+        judged = Scan(scan.stamp, scan.angles[keep], scan.ranges[keep], scan.range_min, scan.range_max)
+        return judged, float(known.mean())
 
     @staticmethod
     def _place_score(own: float, others: NDArray[np.float64], near: NDArray[np.bool_]) -> float:

@@ -73,6 +73,11 @@ class HybridSettings(Settings):
     better_updates: int = setting(
         2, "unless the filter is LOST or INITIALIZING, the candidate must also have been ahead of the estimate at "
         "this many consecutive updates", low=1, high=1000)
+    evidence_where_mapped: bool = setting(
+        True, "the recovery's evidence counts only the beams whose end points at the filter's place the map can judge "
+        "(not in the unexplored unknown space a laser could see into), each weighing as before: a beam the map "
+        "cannot judge there speaks neither for nor against that place, so a robot tracked into space the map has "
+        "not seen is not taken by a mapped look-alike elsewhere; false: every beam (docs/hybrid.md)")
     watch_standing: bool = setting(
         True, "while no filter update is due (the robot stands, or has moved less than mcl.update_min_d / "
         "update_min_a), a scan that contradicts the filter (its fit below mcl.lost_fit_ratio of the average) or comes "
