@@ -443,7 +443,9 @@ class HybridLocalizer:
                            ) -> tuple[float, NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]] | None:
         """The recovery's step on this scan (and ``images``): the best log-odds of a candidate outside the filter's
         support that the map vouches for over the filter's place, with every candidate's advantage, which ones are
-        such, and the candidates in the particles' frame (before this update's motion); None without one."""
+        such, and the candidates in the particles' frame (before this update's motion); None without one. With
+        ``evidence_where_mapped`` every place is scored on the beams the map can judge at the filter's place
+        (:meth:`_mapped_at`), scaled by their share; None when it judges none."""
         s, last = self.settings, self.mcl.last_estimate
         if last is None or len(self.mcl.particles) == 0:
             return None
