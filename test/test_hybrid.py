@@ -455,6 +455,49 @@ def test_a_robot_tracked_into_unexplored_space_is_not_taken_by_a_mapped_look_ali
                                 for error, estimate in outputs)
 
 
+@pytest.mark.parametrize("where_mapped", [True, False])
+def test_a_place_whose_fit_rests_on_unexplored_space_is_no_rival(cache: Path, where_mapped: bool) -> None:
+    """The twin corridor with x 3-6 unexplored, and unmapped clutter (people, boxes) all along it: the robot is
+    tracked at x 7.5-8.6, where the map judges every end point but the clutter lowers the fit, and a source names
+    the place 3.5 m behind, whose wall hits end in the unexplored stretch. The unknown-space credit scores that
+    place as well as the estimate. With ``evidence_where_mapped`` it is no rival (the map judges less of the scan
+    there) and the filter says LOCALIZED; counting every beam, each update is AMBIGUOUS."""
+    world = _twin_corridor()
+    data = world.data.copy()
+    data[:, 60:120] = -1
+    unexplored = GridMap(data, world.resolution, world.origin)
+    cluttered = world.data.copy()
+    for column in range(0, 240, 20):
+        cluttered[20:26, column:column + 4] = cluttered[34:40, column + 10:column + 14] = 100
+    seen = GridMap(cluttered, world.resolution, world.origin)
+    range_m = 2.5
+    truth = [np.array([7.5 + 0.1 * k, 1.5, 0.0]) for k in range(12)]
+
+    def behind(scan: Scan) -> Estimate:
+        return _fake(scan.stamp, compose(truth[int(round(scan.stamp))], np.array([-3.5, 0.0, 0.0]))[None, :])
+
+    settings = _settings(cache, max_range=range_m, wait_for_workers=True, evidence_where_mapped=where_mapped)
+    hybrid = HybridLocalizer(settings, sources=[ProposalSource("behind", behind)])
+    hybrid.set_map(unexplored)
+    rng = np.random.default_rng(0)
+    hybrid.set_initial_pose(truth[0], TIGHT)
+    odometry = np.zeros(3)
+    outputs = []
+    for k, pose in enumerate(truth):
+        if k:
+            odometry = compose(odometry, relative(truth[k - 1], pose))
+        hybrid.request_nomotion_update()
+        hybrid.on_odometry(float(k), odometry)
+        estimate = hybrid.on_scan(_corridor_scan(seen, pose, float(k), range_m, rng))
+        assert estimate is not None and pose_error(estimate.pose, pose)[0] < 0.1
+        outputs.append(estimate)
+    hybrid.close()
+    if where_mapped:
+        assert all(e.status is LocalizerStatus.LOCALIZED and e.details["rivals"] == 0 for e in outputs)
+    else:
+        assert all(e.status is LocalizerStatus.AMBIGUOUS and e.details["rivals"] == 1 for e in outputs)
+
+
 # -- the camera cue -----------------------------------------------------------------------------------
 CORRIDOR_PLACES = [(x, 1.5) for x in (4.0, 4.6, 5.2, 5.8, 6.4, 7.0, 7.6, 8.2)]  # symmetric about x = 6.1
 

@@ -481,18 +481,37 @@ class HybridLocalizer:
         the hits (1 without a hit): all but those in unknown space a laser could see into (``GridMap.open_unknown``,
         the map's unexplored parts; off the map when that space is open). An end point in unknown space sealed off
         by walls, or on a known cell, says the pose is wrong or right."""
-        assert self.grid_map is not None
-        hits = np.flatnonzero(scan.hit_mask)
-        if len(hits) == 0:
+        known = self._judged_hits(scan, pose[None, :])[0]
+        if len(known) == 0:
             return scan, 1.0
-        open_unknown, open_outside = self.grid_map.open_unknown()
-        cells = self.grid_map.world_to_cell(scan.hit_endpoints(pose))
-        on_map = self.grid_map.in_bounds(cells)
-        known = np.full(len(hits), not open_outside)
-        known[on_map] = ~open_unknown[cells[on_map, 1], cells[on_map, 0]]
-        keep = hits[known]
+        keep = np.flatnonzero(scan.hit_mask)[known]
         judged = Scan(scan.stamp, scan.angles[keep], scan.ranges[keep], scan.range_min, scan.range_max)
         return judged, float(known.mean())
+
+    def _ties_by_unexplored_space(self, scan: Scan, pose: NDArray[np.float64],
+                                  places: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """``(K,)`` whether each of ``places`` scores as well as ``pose`` only by the unknown-space credit: the map
+        judges a smaller share of the scan's hits there (:meth:`_mapped_at`) and explains a smaller share of them
+        (end points near a mapped obstacle). A place the map judges as much, or explains as much, stays a rival:
+        twins of a mapped place, and the true place when the map contradicts a wrong estimate."""
+        assert self.grid_map is not None
+        both = np.vstack([pose[None, :], places])
+        known = self._judged_hits(scan, both)
+        if known.shape[1] == 0:
+            return np.zeros(len(places), dtype=bool)
+        judged = known.mean(axis=1)
+        explained = scan_explained(self.grid_map, both, scan)
+        return np.asarray((judged[1:] < judged[0]) & (explained[1:] < explained[0]), dtype=bool)
+
+    def _judged_hits(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """``(K, H)`` per pose, whether the map can judge each hit's end point there (:meth:`_mapped_at`)."""
+        assert self.grid_map is not None
+        open_unknown, open_outside = self.grid_map.open_unknown()
+        cells = self.grid_map.world_to_cell(scan.hit_endpoints(poses))
+        on_map = self.grid_map.in_bounds(cells)
+        known = np.full(on_map.shape, not open_outside)
+        known[on_map] = ~open_unknown[cells[on_map][:, 1], cells[on_map][:, 0]]
+        return known
 
     @staticmethod
     def _place_score(own: float, others: NDArray[np.float64], near: NDArray[np.bool_]) -> float:
@@ -569,6 +588,8 @@ class HybridLocalizer:
         elsewhere = self._elsewhere(pool, estimate.pose)
         here = self._place_score(own, others, ~elsewhere)  # as in the recovery (_recover)
         rivals = np.flatnonzero(elsewhere & (np.nan_to_num(others, nan=-math.inf) >= here - s.ambiguity_log_odds))
+        if rivals.size and s.evidence_where_mapped:
+            rivals = rivals[~self._ties_by_unexplored_space(scan, estimate.pose, pool[rivals])]
         details = {**estimate.details, "estimate_log_fit": round(float(own), 3), "rivals": 0}
         if rivals.size == 0:
             return replace(estimate, details=details)

@@ -77,7 +77,9 @@ class HybridSettings(Settings):
         True, "the recovery's evidence counts only the beams whose end points at the filter's place the map can judge "
         "(not in the unexplored unknown space a laser could see into), each weighing as before: a beam the map "
         "cannot judge there speaks neither for nor against that place, so a robot tracked into space the map has "
-        "not seen is not taken by a mapped look-alike elsewhere; false: every beam (docs/hybrid.md)")
+        "not seen is not taken by a mapped look-alike elsewhere; and a candidate that ties with the estimate only by "
+        "the unknown-space credit (the map judges less of the scan there and explains less of it) is no rival that "
+        "makes the state AMBIGUOUS; false: every beam, every candidate (docs/hybrid.md)")
     watch_standing: bool = setting(
         True, "while no filter update is due (the robot stands, or has moved less than mcl.update_min_d / "
         "update_min_a), a scan that contradicts the filter (its fit below mcl.lost_fit_ratio of the average) or comes "
