@@ -24,7 +24,7 @@ from robot_localization_suite.core.grid_map import GridMap
 from robot_localization_suite.core.localizer import Localizer, LocalizerStatus
 from robot_localization_suite.core.mcl.localizer import MclSettings, MonteCarloLocalizer
 from robot_localization_suite.core.mcl.rivals import Rival, RivalTracker
-from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel
+from robot_localization_suite.core.mcl.sensor_models import BeamModel, LikelihoodFieldModel, unjudged_beams
 from robot_localization_suite.core.metrics import map_coverage
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.core.scan import Scan
@@ -564,6 +564,25 @@ def test_with_a_partial_map_unknown_space_scores_as_a_half_likely_obstacle() -> 
     free = np.array([[1.5, 1.0, 0.0]])
     assert model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0, partial_map=True)[0] == \
         pytest.approx(model.log_likelihood(free, np.array([0.0]), np.array([0.5]), max_range=10.0)[0])
+
+
+def test_the_beams_the_map_cannot_judge_are_those_the_partial_map_credits() -> None:
+    """Unknown space behind a mapped wall is judged (the beam should have stopped at the wall); unknown space or
+    the space off the map that the beam reaches through free cells is not."""
+    data = np.zeros((20, 40), dtype=np.int8)
+    data[:, 30] = 100
+    data[:, :10] = -1  # x < 1.0 unexplored, open to the free space
+    data[:, 35:] = -1  # x >= 3.5 unexplored, behind the wall (open to the free cells there)
+    grid_map = GridMap(data, 0.1, (0.0, 0.0))
+    model = LikelihoodFieldModel(grid_map, z_hit=0.5, z_rand=0.5, sigma_hit=0.2, max_distance=2.0,
+                                 unknown_occupancy=0.5)
+    pose = np.array([[2.0, 1.0, 0.0]])
+    # west into unknown space; east onto the wall; north off the map; east through the wall into unknown space
+    angles, ranges = np.array([math.pi, 0.0, math.pi / 2, 0.0]), np.array([1.45, 1.05, 5.0, 2.0])
+    unjudged = unjudged_beams(grid_map, pose, angles, ranges)
+    assert unjudged.tolist() == [[True, False, True, False]]
+    scores = model.partial_log_likelihood(pose, angles, ranges, max_range=10.0)
+    assert scores.unjudged_count[0] == 2
 
 
 def test_the_field_table_made_in_blocks_of_rows_is_the_formula_at_every_cell(monkeypatch: pytest.MonkeyPatch) -> None:

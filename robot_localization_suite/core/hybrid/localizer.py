@@ -48,6 +48,7 @@ from ..grid_map import GridMap
 from ..ir.global_fix import IRGlobalFixer
 from ..localizer import Estimate, LocalizerStatus
 from ..mcl.localizer import MonteCarloLocalizer
+from ..mcl.sensor_models import unjudged_beams
 from ..metrics import scan_explained
 from ..pil.localizer import PilLocalizer
 from ..scan import Scan
@@ -479,8 +480,9 @@ class HybridLocalizer:
     def _mapped_at(self, scan: Scan, pose: NDArray[np.float64]) -> tuple[Scan, float]:
         """The hits of ``scan`` whose end points seen from ``pose`` the map can judge, as a scan, and their share of
         the hits (1 without a hit): all but those in unknown space a laser could see into (``GridMap.open_unknown``,
-        the map's unexplored parts; off the map when that space is open). An end point in unknown space sealed off
-        by walls, or on a known cell, says the pose is wrong or right."""
+        the map's unexplored parts, or off the map) that the beam reaches through no mapped obstacle, as the
+        filter's partial-map credit. An end point on a known cell, in unknown space sealed off by walls, or behind
+        a mapped wall says the pose is wrong or right."""
         known = self._judged_hits(scan, pose[None, :])[0]
         if len(known) == 0:
             return scan, 1.0
@@ -504,14 +506,10 @@ class HybridLocalizer:
         return np.asarray((judged[1:] < judged[0]) & (explained[1:] < explained[0]), dtype=bool)
 
     def _judged_hits(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """``(K, H)`` per pose, whether the map can judge each hit's end point there (:meth:`_mapped_at`)."""
+        """``(K, H)`` per pose, whether the map can judge each hit's end point there (:meth:`_mapped_at`): all but
+        those the filter's sensor model credits as unknown space (``sensor_models.unjudged_beams``)."""
         assert self.grid_map is not None
-        open_unknown, open_outside = self.grid_map.open_unknown()
-        cells = self.grid_map.world_to_cell(scan.hit_endpoints(poses))
-        on_map = self.grid_map.in_bounds(cells)
-        known = np.full(on_map.shape, not open_outside)
-        known[on_map] = ~open_unknown[cells[on_map][:, 1], cells[on_map][:, 0]]
-        return known
+        return ~unjudged_beams(self.grid_map, poses, *scan.hits())
 
     @staticmethod
     def _place_score(own: float, others: NDArray[np.float64], near: NDArray[np.bool_]) -> float:

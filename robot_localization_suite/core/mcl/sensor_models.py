@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..grid_map import GridMap
 from ..raycast import RayCaster
 
-__all__ = ["LikelihoodFieldModel", "BeamModel", "PartialMapScores", "field_log_likelihood"]
+__all__ = ["LikelihoodFieldModel", "BeamModel", "PartialMapScores", "field_log_likelihood", "unjudged_beams"]
 
 
 # Cells per block when a per-cell table is computed (float64 temporaries of about 8 MB each).
@@ -114,6 +114,33 @@ def _ray_is_clear(occupied, clearance, inverse_resolution, x0, y0, x1, y1):
     return True
 
 
+_KNOWN, _CREDITED, _THROUGH_WALL = 0, 1, 2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _laser_at(poses, p, origin_x, origin_y, inverse_resolution):
+    """Pose ``p``'s position [m], heading cosine and sine, and position in grid coordinates [cells]."""
+    x = poses[p, 0]
+    y = poses[p, 1]
+    return x, y, math.cos(poses[p, 2]), math.sin(poses[p, 2]), (x - origin_x) * inverse_resolution, \
+        (y - origin_y) * inverse_resolution
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _end_class(open_unknown, occupied, clearance, inverse_resolution, gx, gy, ex, ey):
+    """What the map says of an end point (ex, ey) seen from (gx, gy) [cells]: ``_KNOWN`` on a known cell;
+    ``_CREDITED`` in open unknown space or off the map, reached through no mapped obstacle (the map cannot
+    judge it); ``_THROUGH_WALL`` there, but behind a mapped obstacle (no explanation)."""
+    height, width = open_unknown.shape
+    ix = int(math.floor(ex))
+    iy = int(math.floor(ey))
+    if ix >= 0 and iy >= 0 and ix < width and iy < height and not open_unknown[iy, ix]:
+        return _KNOWN
+    if _ray_is_clear(occupied, clearance, inverse_resolution, gx, gy, ex, ey):
+        return _CREDITED
+    return _THROUGH_WALL
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution,
                         poses, beam_x, beam_y, beam_floor, off_map, closed_off_map, out, unjudged_sum,
@@ -123,12 +150,7 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
     credited beams (the map cannot judge them) are also summed and counted on their own, per pose."""
     height, width = table.shape
     for p in range(poses.shape[0]):
-        x = poses[p, 0]
-        y = poses[p, 1]
-        c = math.cos(poses[p, 2])
-        s = math.sin(poses[p, 2])
-        gx = (x - origin_x) * inverse_resolution
-        gy = (y - origin_y) * inverse_resolution
+        x, y, c, s, gx, gy = _laser_at(poses, p, origin_x, origin_y, inverse_resolution)
         total = 0.0
         credited = 0.0
         credited_count = 0
@@ -137,9 +159,10 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
             ix = int(math.floor(ex))
             iy = int(math.floor(ey))
             inside = ix >= 0 and iy >= 0 and ix < width and iy < height
-            if inside and not open_unknown[iy, ix]:
+            kind = _end_class(open_unknown, occupied, clearance, inverse_resolution, gx, gy, ex, ey)
+            if kind == _KNOWN:
                 total += max(table[iy, ix], beam_floor[b])
-            elif _ray_is_clear(occupied, clearance, inverse_resolution, gx, gy, ex, ey):
+            elif kind == _CREDITED:
                 value = max(table[iy, ix] if inside else off_map, beam_floor[b])
                 total += value
                 credited += value
@@ -149,6 +172,30 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
         out[p] = total
         unjudged_sum[p] = credited
         unjudged_count[p] = credited_count
+
+
+@numba.njit(cache=True, nogil=True)
+def _credited_kernel(open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution, poses, beam_x, beam_y,
+                     out):
+    for p in range(poses.shape[0]):
+        x, y, c, s, gx, gy = _laser_at(poses, p, origin_x, origin_y, inverse_resolution)
+        for b in range(beam_x.shape[0]):
+            ex, ey = _end_cell(x, y, c, s, beam_x[b], beam_y[b], origin_x, origin_y, inverse_resolution)
+            out[p, b] = _end_class(open_unknown, occupied, clearance, inverse_resolution, gx, gy, ex, ey) == _CREDITED
+
+
+def unjudged_beams(grid_map: GridMap, poses: ArrayLike, angles: ArrayLike, ranges: ArrayLike) -> NDArray[np.bool_]:
+    """``(P, B)`` per laser pose, whether the map cannot judge each reading's end point there: in open unknown space
+    (``GridMap.open_unknown``) or off the map, reached through no mapped obstacle. These are the beams the
+    likelihood field credits on a partial map (:meth:`LikelihoodFieldModel.partial_log_likelihood`)."""
+    poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
+    beam_x, beam_y = _beam_offsets(angles, ranges)
+    out = np.zeros((poses_arr.shape[0], beam_x.shape[0]), dtype=np.bool_)
+    origin = grid_map.origin
+    _credited_kernel(grid_map.open_unknown()[0], np.ascontiguousarray(grid_map.occupied_mask),
+                     np.ascontiguousarray(grid_map.distance_field()), float(origin[0]), float(origin[1]),
+                     1.0 / grid_map.resolution, poses_arr, beam_x, beam_y, out)
+    return out
 
 
 def _beam_offsets(angles: ArrayLike, ranges: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
