@@ -131,9 +131,8 @@ class Scan:
         return Scan(self.stamp, self.angles[index], self.ranges[index], self.range_min, self.range_max)
 
     def hit_endpoints(self, laser_pose: ArrayLike) -> NDArray[np.float64]:
-        """World points ``(H, 2)`` of the hits seen from ``laser_pose`` ``(3,)``; ``(K, H, 2)`` from poses ``(K, 3)``."""
+        """World points ``(H, 2)`` of the hits seen from ``laser_pose`` ``(3,)``."""
         pose = np.asarray(laser_pose, dtype=np.float64)
         angles, ranges = self.hits()
-        heading = pose[..., 2, None] + angles
-        return np.stack([pose[..., 0, None] + ranges * np.cos(heading), pose[..., 1, None] + ranges * np.sin(heading)],
-                        axis=-1)
+        heading = pose[2] + angles
+        return np.stack([pose[0] + ranges * np.cos(heading), pose[1] + ranges * np.sin(heading)], axis=-1)
