@@ -288,8 +288,9 @@ def _corridor_scan(grid_map: GridMap, pose: np.ndarray, stamp: float, range_max:
 def _carried_unseen(hybrid: HybridLocalizer, corridor: GridMap, range_m: float, before: list[np.ndarray],
                     after: list[np.ndarray], camera: CameraRenderer | None, seed: int) -> list[tuple[np.ndarray, Estimate]]:
     """Tracked along ``before``, carried to ``after[0]`` (odometry blind to it), then along ``after``, with an update
-    at every scan (the tests count updates): the (truth, estimate) of every update from the carry on. With
-    ``camera``, the image at each step goes in before its scan."""
+    at every scan (the tests count updates): the (truth, estimate) of every update from the carry on; with no
+    ``before``, tracked along ``after`` from its first pose. With ``camera``, the image at each step goes in before
+    its scan."""
     rng = np.random.default_rng(seed)
     truth = before + after
     odometry = [np.zeros(3)]
@@ -412,6 +413,15 @@ def test_driving_to_and_fro_where_the_scans_match_a_twin_place_injects_nothing(c
     assert all(pose_error(estimate.pose, pose)[0] < 0.3 for pose, estimate in outputs)
 
 
+def _unexplored_corridor() -> tuple[GridMap, GridMap]:
+    """The twin corridor (the world the laser sees) and its map with x 3-6 unexplored (unknown, open to the free
+    space)."""
+    world = _twin_corridor()
+    data = world.data.copy()
+    data[:, 60:120] = -1
+    return world, GridMap(data, world.resolution, world.origin)
+
+
 @pytest.mark.parametrize("where_mapped", [True, False])
 def test_a_robot_tracked_into_unexplored_space_is_not_taken_by_a_mapped_look_alike(cache: Path,
                                                                                    where_mapped: bool) -> None:
@@ -419,10 +429,7 @@ def test_a_robot_tracked_into_unexplored_space_is_not_taken_by_a_mapped_look_ali
     source names the twin of the truth, where the map explains the scan. Counting only the beams the map can judge
     at the filter's place, nothing builds up; counting every beam, the mapped look-alike outscores the unknown space
     and takes the filter, which then says LOCALIZED metres off (honest maps of real logs, docs/hybrid.md)."""
-    world = _twin_corridor()
-    data = world.data.copy()
-    data[:, 60:120] = -1
-    unexplored = GridMap(data, world.resolution, world.origin)
+    world, unexplored = _unexplored_corridor()
     range_m = 2.5
     truth = [np.array([4.0 + 0.1 * k, 1.5, 0.0]) for k in range(12)]
 
@@ -434,19 +441,8 @@ def test_a_robot_tracked_into_unexplored_space_is_not_taken_by_a_mapped_look_ali
                          evidence_where_mapped=where_mapped)
     hybrid = HybridLocalizer(settings, sources=[ProposalSource("twin", twin_of_the_truth)])
     hybrid.set_map(unexplored)
-    rng = np.random.default_rng(0)
-    hybrid.set_initial_pose(truth[0], TIGHT)
-    odometry = np.zeros(3)
-    outputs = []
-    for k, pose in enumerate(truth):
-        if k:
-            odometry = compose(odometry, relative(truth[k - 1], pose))
-        hybrid.request_nomotion_update()
-        hybrid.on_odometry(float(k), odometry)
-        estimate = hybrid.on_scan(_corridor_scan(world, pose, float(k), range_m, rng))
-        assert estimate is not None
-        outputs.append((pose_error(estimate.pose, pose)[0], estimate))
-    hybrid.close()
+    outputs = [(pose_error(estimate.pose, pose)[0], estimate)
+               for pose, estimate in _carried_unseen(hybrid, world, range_m, [], truth, None, seed=0)]
     injected = any(estimate.details.get("injected") for _, estimate in outputs)
     if where_mapped:
         assert not injected and all(error < 0.3 for error, _ in outputs)
@@ -462,10 +458,7 @@ def test_a_place_whose_fit_rests_on_unexplored_space_is_no_rival(cache: Path, wh
     the place 3.5 m behind, whose wall hits end in the unexplored stretch. The unknown-space credit scores that
     place as well as the estimate. With ``evidence_where_mapped`` it is no rival (the map judges less of the scan
     there) and the filter says LOCALIZED; counting every beam, each update is AMBIGUOUS."""
-    world = _twin_corridor()
-    data = world.data.copy()
-    data[:, 60:120] = -1
-    unexplored = GridMap(data, world.resolution, world.origin)
+    world, unexplored = _unexplored_corridor()
     cluttered = world.data.copy()
     for column in range(0, 240, 20):
         cluttered[20:26, column:column + 4] = cluttered[34:40, column + 10:column + 14] = 100
@@ -479,19 +472,9 @@ def test_a_place_whose_fit_rests_on_unexplored_space_is_no_rival(cache: Path, wh
     settings = _settings(cache, max_range=range_m, wait_for_workers=True, evidence_where_mapped=where_mapped)
     hybrid = HybridLocalizer(settings, sources=[ProposalSource("behind", behind)])
     hybrid.set_map(unexplored)
-    rng = np.random.default_rng(0)
-    hybrid.set_initial_pose(truth[0], TIGHT)
-    odometry = np.zeros(3)
-    outputs = []
-    for k, pose in enumerate(truth):
-        if k:
-            odometry = compose(odometry, relative(truth[k - 1], pose))
-        hybrid.request_nomotion_update()
-        hybrid.on_odometry(float(k), odometry)
-        estimate = hybrid.on_scan(_corridor_scan(seen, pose, float(k), range_m, rng))
-        assert estimate is not None and pose_error(estimate.pose, pose)[0] < 0.1
-        outputs.append(estimate)
-    hybrid.close()
+    tracked = _carried_unseen(hybrid, seen, range_m, [], truth, None, seed=0)
+    assert len(tracked) == len(truth) and all(pose_error(estimate.pose, pose)[0] < 0.1 for pose, estimate in tracked)
+    outputs = [estimate for _, estimate in tracked]
     if where_mapped:
         assert all(e.status is LocalizerStatus.LOCALIZED and e.details["rivals"] == 0 for e in outputs)
     else:
