@@ -103,6 +103,12 @@ def lost_for_two_seconds(stamp: float) -> tuple[float, float, float] | None:
     return (0.0, -3.0, 0.0) if -1e-9 <= since_kidnap < 2.0 - 1e-9 else (0.0, 0.0, 0.0)
 
 
+def at_the_destination_early(stamp: float) -> tuple[float, float, float]:
+    """Echo error: 1 s before the kidnapping it already names the place the robot is carried to."""
+    since_kidnap = stamp - 100.0 - KIDNAP_AT
+    return (0.0, 3.0, 0.0) if -1.0 - 1e-9 <= since_kidnap < -1e-9 else (0.0, 0.0, 0.0)
+
+
 def constant_offset(stamp: float) -> tuple[float, float, float]:
     return (0.3, 0.0, 0.0)
 
@@ -163,6 +169,15 @@ def test_constant_offset_end_to_end(kidnap_bag, tmp_path):
     assert fields["fine_rate"] == 0.0
     assert fields["rmse_xy_m"] == pytest.approx(0.3, abs=1e-6)
     assert fields["kidnap_recovery_s"] == [0.0]  # the echo follows the jump at once
+
+
+def test_a_recovery_at_a_place_held_before_the_kidnapping_is_marked_in_the_table(kidnap_bag, tmp_path):
+    path, truth = kidnap_bag
+    fields = bench.run_benchmark([path], [echo_spec(truth, at_the_destination_early)], tmp_path, isolate=False,
+                                 plots=False)["room_kidnap"]["echo"]
+    assert fields["kidnap_recovery_s"] == [0.0]
+    assert fields["kidnap_at_destination_before"] == [True]
+    assert "| [0 (there before)] |" in (tmp_path / "summary.md").read_text()
 
 
 def test_localizer_that_never_publishes_gives_nulls(kidnap_bag, tmp_path):

@@ -85,6 +85,28 @@ def test_kidnapping_recovered_after_two_seconds():
     assert fields["rmse_xy_m"] == pytest.approx(0.0, abs=1e-9)
 
 
+def test_a_kidnapping_to_the_place_a_method_already_held_is_marked_there_before():
+    truth, odometry = kidnapped_line(jump_at=10.0)
+    kidnaps = metrics.detect_kidnappings(truth, odometry)
+    stamps = truth.stamps
+    # A look-alike method names the destination (3 m sideways) from 8 s on: wrong for 2 s, then "recovered" at once.
+    outputs = truth.poses.copy()
+    early = (stamps >= 8.0 - 1e-9) & (stamps < 10.0 - 1e-9)
+    outputs[early, 1] += 3.0
+    fields = metrics.evaluate_outputs(stamps, outputs, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert fields["kidnap_recovery_s"] == [0.0]
+    assert fields["kidnap_at_destination_before"] == [True]
+    # A method right before the jump that follows it at once found the destination: not marked.
+    fields = metrics.evaluate_outputs(stamps, truth.poses, truth, first_input_stamp=0.0, kidnap_indices=kidnaps)
+    assert fields["kidnap_recovery_s"] == [0.0]
+    assert fields["kidnap_at_destination_before"] == [False]
+    # No output before the jump: nothing to say.
+    after = stamps >= 10.0 - 1e-9
+    fields = metrics.evaluate_outputs(stamps[after], truth.poses[after], truth, first_input_stamp=0.0,
+                                      kidnap_indices=kidnaps)
+    assert fields["kidnap_at_destination_before"] == [None]
+
+
 def test_kidnapping_never_recovered_gives_null():
     truth, odometry = kidnapped_line(jump_at=10.0)
     kidnaps = metrics.detect_kidnappings(truth, odometry)

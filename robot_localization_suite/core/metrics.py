@@ -278,7 +278,10 @@ def evaluate_outputs(
     ``time_to_first_fix_s``, ``kidnap_recovery_s``, ``correct_rate``, ``fine_rate``,
     ``rmse_xy_m``, ``rmse_theta_rad``, ``kidnap_recovery_updates`` and, given
     ``candidates`` ``(N, K, 3)`` (each output's first K candidates, NaN-padded),
-    ``kidnap_candidate_recovery_updates``; nulls where a value does not exist; ``recovering``, per output
+    ``kidnap_candidate_recovery_updates``; ``kidnap_at_destination_before``, per kidnapping whether the last
+    output before the jump was already correct for the pose the robot was carried to (its recovery is then the
+    kidnapping coming to a place the method held wrongly, not a finding; null without an output before the jump);
+    nulls where a value does not exist; ``recovering``, per output
     whether it lies in a kidnapping's window (from the jump to its recovery fix, at least 5 s); and
     ``rmse_excluded``, the intervals ``[start, stop)`` of stamps the RMSE leaves out (before the first fix,
     each kidnapping's window; everything without a fix), for :func:`shared_rmse`.
@@ -304,6 +307,7 @@ def evaluate_outputs(
     recoveries: list[float | None] = []
     recovery_updates: list[int | None] = []
     candidate_updates: list[int | None] = []
+    at_destination: list[bool | None] = []
     recovering = np.zeros(stamps.size, dtype=bool)  # from each jump to its recovery fix (>= 5 s)
     excluded = [(-np.inf, np.inf if fix is None else float(stamps[fix]))]
     for k, jump_stamp in enumerate(kidnap_stamps):
@@ -312,6 +316,11 @@ def evaluate_outputs(
         index = first_fix_index(stamps, correct, start=jump_stamp, stop=next_jump)
         recoveries.append(None if index is None else _rounded(stamps[index] - jump_stamp))
         recovery_updates.append(None if index is None else index - first_after + 1)
+        if first_after == 0:
+            at_destination.append(None)
+        else:  # the last output before the jump against the pose the robot was carried to
+            held = correct_mask(*pose_errors(poses[first_after - 1], ground_truth.poses[kidnaps[k]]))
+            at_destination.append(bool(held[0]))
         if proposed is not None:
             found = first_fix_index(stamps, proposed, start=jump_stamp, stop=next_jump)
             candidate_updates.append(None if found is None else found - first_after + 1)
@@ -323,6 +332,7 @@ def evaluate_outputs(
         "time_to_first_fix_s": time_to_first_fix,
         "kidnap_recovery_s": recoveries,
         "kidnap_recovery_updates": recovery_updates,
+        "kidnap_at_destination_before": at_destination,
         "kidnap_candidate_recovery_updates": candidate_updates if proposed is not None else None,
         "correct_rate": None,
         "fine_rate": None,

@@ -32,6 +32,15 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return str(value)
 
 
+def _cell(fields: Mapping[str, Any], key: str) -> str:
+    """A table cell; a kidnapping the method was already at (wrongly, before the jump) is marked "there before"."""
+    if key != "kidnap_recovery_s" or not fields.get(key):
+        return _fmt(fields.get(key))
+    there = fields.get("kidnap_at_destination_before") or []
+    marks = [" (there before)" if k < len(there) and there[k] else "" for k in range(len(fields[key]))]
+    return "[" + ", ".join(_fmt(value) + mark for value, mark in zip(fields[key], marks, strict=True)) + "]"
+
+
 def one_line(fields: dict[str, Any]) -> str:
     """A run's main figures on one line, for the progress output."""
     return (f"outputs {fields.get('outputs')}, correct_rate {_fmt(fields.get('correct_rate'))}, "
@@ -115,7 +124,7 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
             if "skipped" in fields or ("error" in fields and "outputs" not in fields):
                 cells = ["" for _ in columns]
             else:
-                cells = [_fmt(fields.get(key)) for key, _ in columns]
+                cells = [_cell(fields, key) for key, _ in columns]
             lines.append("| " + " | ".join([bag, name, *cells, "; ".join(notes)]) + " |")
     return "\n".join(lines)
 
@@ -170,6 +179,6 @@ def comparison_tables(runs: Mapping[str, Mapping[str, Mapping[str, Mapping[str, 
                     why = "not run" if fields is None else fields.get("skipped") or fields.get("error") or "no output"
                     lines.append("| " + " | ".join([bag, label, why, *([""] * (len(_COMPARED) - 1))]) + " |")
                 else:
-                    lines.append("| " + " | ".join([bag, label, *(_fmt(fields.get(key)) for key in _COMPARED)]) + " |")
+                    lines.append("| " + " | ".join([bag, label, *(_cell(fields, key) for key in _COMPARED)]) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
