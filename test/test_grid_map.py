@@ -96,6 +96,18 @@ def test_raw(tmp_path: Path) -> None:
     assert grid.data[0].tolist() == [50, -1, 7]
 
 
+def test_a_map_file_and_the_same_map_on_the_topic_are_one_map(tmp_path: Path) -> None:
+    from robot_localization_suite.ros import conversions
+
+    grid = load_map_yaml(write_map(tmp_path, resolution=0.05, origin=[-36.75, -19.5, 0.0]))
+    received = conversions.grid_map_from_msg(conversions.grid_map_to_msg(grid, 0.0))
+    assert grid.resolution == received.resolution == float(np.float32(0.05))
+    assert grid.fingerprint() == received.fingerprint()
+    # A point on a cell corner (PIL's tile centres are) falls in the same cell on both.
+    corner = np.array([[-36.75 + 0.2 * 7, -19.5 + 0.2 * 3]])
+    assert np.array_equal(grid.world_to_cell(corner), received.world_to_cell(corner))
+
+
 def test_png_image_and_default_mode(tmp_path: Path) -> None:
     assert cv2.imwrite(str(tmp_path / "colour.png"), np.dstack([IMAGE] * 3))
     path = write_map(tmp_path, None, image="colour.png", mode=None)

@@ -396,7 +396,10 @@ def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
                                  free_thresh)
     return GridMap(
         data.astype(np.int8, copy=False),
-        resolution,
+        # At the float32 precision of nav_msgs/OccupancyGrid, as map_server publishes it: this file and the same
+        # map received on /map must be one map (0.05 and 0.05000000074505806 put a point on a cell corner in
+        # different cells; docs/benchmark.md, "One map from a file or from /map").
+        float(np.float32(resolution)),
         (origin_x, origin_y),
         # In scale mode the in-between values are graded, not obstacles nor free space.
         occupied_threshold=100 if mode == "scale" else 65,
