@@ -64,6 +64,9 @@ if TYPE_CHECKING:  # the camera's modules load OpenCV: only a hybrid with a came
 __all__ = ["HybridSettings", "HybridLocalizer", "ProposalSource"]
 
 _LOG = logging.getLogger(__name__)
+# Where the map refutes the filter's place, a candidate counts when the map explains more of the scan's end points
+# there than it leaves unexplained (HybridLocalizer._explained; docs/hybrid.md, "A start the map refutes").
+_MOST = 0.5
 
 
 class HybridLocalizer:
@@ -472,7 +475,7 @@ class HybridLocalizer:
         advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
         outside = ~inside
         if outside.any():
-            outside[outside] = self._explained(scan, pool[outside])
+            outside[outside] = self._explained(scan, pool[outside], against=predicted)
         if not outside.any() or not np.isfinite(advantage[outside]).any():
             return None
         return float(advantage[outside].max()), advantage, outside, back
@@ -632,16 +635,33 @@ class HybridLocalizer:
         return bool(laser_lead >= -s.ambiguity_log_odds and lead - laser_lead > s.ambiguity_log_odds
                     and self._explained(scan, pool[[rival]])[0])
 
-    def _explained(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
+    def _refuted(self, scan: Scan, pose: NDArray[np.float64]) -> bool:
+        """Whether the map refutes ``pose`` for ``scan`` (:meth:`_explained`)."""
+        assert self.grid_map is not None
+        s = self.settings
+        known = self._judged_hits(scan, pose[None, :])[0]
+        if known.size == 0:
+            return False
+        explained = float(scan_explained(self.grid_map, pose[None, :], scan)[0])
+        return bool(known.mean() >= s.switch_min_explained and explained <= 1.0 - s.switch_min_explained)
+
+    def _explained(self, scan: Scan, poses: NDArray[np.float64],
+                   against: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
         """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
-        a mapped obstacle there (no hit cannot be judged: True). While the filter's fit stays dropped and the map
-        vouches for none of ``poses``, the place it vouched for as the best guess (moved by the odometry) stays
-        vouched for: a person beside the robot after a kidnapping hides walls from the later scans, not the place."""
+        a mapped obstacle there (no hit cannot be judged: True). Given the filter's place ``against``, where the map
+        refutes that place a pose also counts where the map explains more of the scan's end points than it leaves
+        unexplained. The map refutes a place, the mirror of vouching, when it can judge (:meth:`_mapped_at`) at
+        least ``switch_min_explained`` of the end points there and explains at most ``1 - switch_min_explained``.
+        While the filter's fit stays dropped and the map vouches for none of ``poses``, the
+        place it vouched for as the best guess (moved by the odometry) stays vouched for: a person beside the robot
+        after a kidnapping hides walls from the later scans, not the place."""
         s = self.settings
         if s.switch_min_explained <= 0.0 or self.grid_map is None:
             return np.ones(len(poses), dtype=bool)
         explained = scan_explained(self.grid_map, poses, scan)
         vouched = ~(explained < s.switch_min_explained)
+        if against is not None and not vouched.all() and self._refuted(scan, against):
+            vouched |= explained > _MOST
         if self._vouched is not None and self.mcl.fit_dropped and not vouched.any():
             place, then = self._vouched
             now = self.mcl.odometry.at(scan.stamp)
