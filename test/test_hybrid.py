@@ -64,9 +64,10 @@ def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("pil")
 
 
-def _replay(hybrid: HybridLocalizer, run: Drive) -> list[tuple[int, Estimate]]:
-    """The run's odometry and scans through ``hybrid`` from its initial pose; the updates' (step, estimate)."""
-    hybrid.set_initial_pose(run.truth[0], TIGHT)
+def _replay(hybrid: HybridLocalizer, run: Drive, start: np.ndarray | None = None) -> list[tuple[int, Estimate]]:
+    """The run's odometry and scans through ``hybrid`` from its initial pose (or ``start``); the updates' (step,
+    estimate)."""
+    hybrid.set_initial_pose(run.truth[0] if start is None else start, TIGHT)
     outputs = []
     for k in range(len(run.stamps)):
         hybrid.on_odometry(run.stamps[k], run.odometry[k])
@@ -218,15 +219,7 @@ def test_a_start_the_map_refutes_yields_to_a_candidate_it_explains_better(office
     explained = scan_explained(office, run.truth, run.scans[0])
     assert explained[0] < hybrid.settings.switch_min_explained  # the map alone does not vouch for the true place
     assert scan_explained(office, start[None, :], run.scans[0])[0] < 0.1
-    hybrid.set_initial_pose(start, TIGHT)
-    outputs = []
-    for k in range(len(run.stamps)):
-        hybrid.on_odometry(run.stamps[k], run.odometry[k])
-        estimate = hybrid.on_scan(run.scans[k])
-        if estimate is not None:
-            outputs.append((k, estimate))
-    hybrid.close()
-    errors = [pose_error(estimate.pose, run.truth[k])[0] for k, estimate in outputs]
+    errors = [pose_error(estimate.pose, run.truth[k])[0] for k, estimate in _replay(hybrid, run, start)]
     assert errors[0] > 5.0
     assert errors[-1] < 0.3 and max(errors[len(errors) // 2:]) < 0.3, errors
 
