@@ -65,7 +65,8 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
         fields["correct"] = int(np.count_nonzero(evaluation["correct"]))
         fields["fine"] = int(np.count_nonzero(evaluation["fine"]))
         for key in ("time_to_first_fix_s", "kidnap_recovery_s", "kidnap_recovery_updates",
-                    "kidnap_at_destination_before", "kidnap_candidate_recovery_updates", "correct_rate", "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
+                    "kidnap_at_destination_before", "kidnap_candidate_recovery_updates", "correct_rate",
+                    "fine_rate", "rmse_xy_m", "rmse_theta_rad"):
             fields[key] = evaluation[key]
         series = {key: evaluation[key] for key in ("correct", "fine", "position_error_m", "heading_error_rad",
                                                    "recovering", "rmse_excluded")}
