@@ -350,7 +350,7 @@ def test_camera_images_at_their_rate_and_lazy_import(room_scenario, monkeypatch:
 # -- the committed maps and scenarios -----------------------------------------------------------------
 @pytest.mark.parametrize("name", sorted(MAP_BUILDERS))
 def test_committed_maps_are_what_make_maps_builds(name: str) -> None:
-    committed = load_map_yaml(ROOT / "config" / "maps" / f"{name}.yaml")
+    committed = load_map_yaml(ROOT / "config" / "maps" / f"{name}.yaml", exact_resolution=True)
     built = MAP_BUILDERS[name](0.05)
     assert np.array_equal(committed.data, built.data)
     assert committed.resolution == 0.05

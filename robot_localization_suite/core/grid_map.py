@@ -330,8 +330,9 @@ def _occupancy_values(
     return data
 
 
-def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
-    """Load a nav2 map_server map (YAML + PGM/PNG image).
+def load_map_yaml(yaml_path: str | os.PathLike[str], *, exact_resolution: bool = False) -> GridMap:
+    """Load a nav2 map_server map (YAML + PGM/PNG image), its resolution at the float32 precision ``/map`` carries;
+    ``exact_resolution``: as the file writes it (the simulator's world, whose scans the committed bags hold).
 
     Raises:
         MapError: naming the file, the field and the bad value.
@@ -399,7 +400,7 @@ def load_map_yaml(yaml_path: str | os.PathLike[str]) -> GridMap:
         # At the float32 precision of nav_msgs/OccupancyGrid, as map_server publishes it: this file and the same
         # map received on /map must be one map (0.05 and 0.05000000074505806 put a point on a cell corner in
         # different cells; docs/benchmark.md, "One map from a file or from /map").
-        float(np.float32(resolution)),
+        resolution if exact_resolution else float(np.float32(resolution)),
         (origin_x, origin_y),
         # In scale mode the in-between values are graded, not obstacles nor free space.
         occupied_threshold=100 if mode == "scale" else 65,

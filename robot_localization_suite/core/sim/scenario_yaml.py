@@ -118,7 +118,7 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
         raise ScenarioError("scenario has no 'start' pose [x, y, yaw]")
     map_path = (Path(base_dir) / str(data["map"])).resolve()
     try:
-        grid_map = load_map_yaml(map_path)
+        grid_map = load_map_yaml(map_path, exact_resolution=True)
     except MapError as exc:
         raise ScenarioError(f"scenario map {str(data['map'])!r}: {exc}") from exc
 
@@ -167,7 +167,7 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
             raise ScenarioError(f"map_changes[{index}] needs 'time' and 'map', got {item!r}")
         changed_path = (Path(base_dir) / str(raw["map"])).resolve()
         try:
-            changed_map = load_map_yaml(changed_path)
+            changed_map = load_map_yaml(changed_path, exact_resolution=True)
         except MapError as exc:
             raise ScenarioError(f"map_changes[{index}].map {str(raw['map'])!r}: {exc}") from exc
         map_changes.append(

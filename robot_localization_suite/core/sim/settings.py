@@ -115,7 +115,7 @@ def build_scenario(settings: ScanSimSettings, scenario_path: Path | None) -> Sce
     if not settings.map_yaml:
         raise ScenarioError("set either 'scenario' or 'map_yaml' (cmd_vel mode)")
     return Scenario(
-        grid_map=load_map_yaml(settings.map_yaml),
+        grid_map=load_map_yaml(settings.map_yaml, exact_resolution=True),
         start=(settings.start_x, settings.start_y, settings.start_yaw),
         laser=LaserConfig(**laser_changes),
         odometry=OdometryConfig(**odom_changes),
