@@ -499,14 +499,21 @@ class HybridLocalizer:
         judges a smaller share of the scan's hits there (:meth:`_mapped_at`) and explains a smaller share of them
         (end points near a mapped obstacle). A place the map judges as much, or explains as much, stays a rival:
         twins of a mapped place, and the true place when the map contradicts a wrong estimate."""
-        assert self.grid_map is not None
-        both = np.vstack([pose[None, :], places])
-        known = self._judged_hits(scan, both)
-        if known.shape[1] == 0:
+        shares = self._map_shares(scan, np.vstack([pose[None, :], places]))
+        if shares is None:
             return np.zeros(len(places), dtype=bool)
-        judged = known.mean(axis=1)
-        explained = scan_explained(self.grid_map, both, scan)
+        judged, explained = shares
         return np.asarray((judged[1:] < judged[0]) & (explained[1:] < explained[0]), dtype=bool)
+
+    def _map_shares(self, scan: Scan, poses: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """``(K,)`` twice: per pose, the share of the scan's hits the map can judge there (:meth:`_mapped_at`) and
+        the share it explains (end points near a mapped obstacle); None without a hit."""
+        assert self.grid_map is not None
+        known = self._judged_hits(scan, poses)
+        if known.shape[1] == 0:
+            return None
+        return known.mean(axis=1), scan_explained(self.grid_map, poses, scan)
 
     def _judged_hits(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.bool_]:
         """``(K, H)`` per pose, whether the map can judge each hit's end point there (:meth:`_mapped_at`): all but
@@ -637,13 +644,12 @@ class HybridLocalizer:
 
     def _refuted(self, scan: Scan, pose: NDArray[np.float64]) -> bool:
         """Whether the map refutes ``pose`` for ``scan`` (:meth:`_explained`)."""
-        assert self.grid_map is not None
         s = self.settings
-        known = self._judged_hits(scan, pose[None, :])[0]
-        if known.size == 0:
+        shares = self._map_shares(scan, pose[None, :])
+        if shares is None:
             return False
-        explained = float(scan_explained(self.grid_map, pose[None, :], scan)[0])
-        return bool(known.mean() >= s.switch_min_explained and explained <= 1.0 - s.switch_min_explained)
+        judged, explained = shares
+        return bool(judged[0] >= s.switch_min_explained and explained[0] <= 1.0 - s.switch_min_explained)
 
     def _explained(self, scan: Scan, poses: NDArray[np.float64],
                    against: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:

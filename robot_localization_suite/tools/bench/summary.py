@@ -76,8 +76,9 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
             fields["after_events"] = _after_events(record, reference, np.asarray(evaluation["correct"], dtype=bool))
     else:
         fields.update(correct=None, fine=None, time_to_first_fix_s=None, kidnap_recovery_s=[],
-                      kidnap_recovery_updates=[], kidnap_at_destination_before=[], kidnap_candidate_recovery_updates=None, correct_rate=None,
-                      fine_rate=None, rmse_xy_m=None, rmse_theta_rad=None)
+                      kidnap_recovery_updates=[], kidnap_at_destination_before=[],
+                      kidnap_candidate_recovery_updates=None, correct_rate=None, fine_rate=None, rmse_xy_m=None,
+                      rmse_theta_rad=None)
     fields.update(metrics.timing_fields(record.update_ms))
     fields["peak_rss_mb"] = record.peak_rss_mb
     fields["outputs"] = int(record.stamps.size)
