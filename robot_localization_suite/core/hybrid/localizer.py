@@ -475,7 +475,8 @@ class HybridLocalizer:
         advantage = np.nan_to_num(scores[1:] - reference, nan=-math.inf)
         outside = ~inside
         if outside.any():
-            outside[outside] = self._explained(scan, pool[outside], against=predicted)
+            place = np.vstack([predicted[None, :], pool[inside]])  # the filter's place: its poses, as reference
+            outside[outside] = self._explained(scan, pool[outside], against=place)
         if not outside.any() or not np.isfinite(advantage[outside]).any():
             return None
         return float(advantage[outside].max()), advantage, outside, back
@@ -642,22 +643,25 @@ class HybridLocalizer:
         return bool(laser_lead >= -s.ambiguity_log_odds and lead - laser_lead > s.ambiguity_log_odds
                     and self._explained(scan, pool[[rival]])[0])
 
-    def _refuted(self, scan: Scan, pose: NDArray[np.float64]) -> bool:
-        """Whether the map refutes ``pose`` for ``scan`` (:meth:`_explained`)."""
+    def _refuted(self, scan: Scan, place: NDArray[np.float64]) -> bool:
+        """Whether the map refutes a place for ``scan``: each of its ``(K, 3)`` poses (:meth:`_explained`)."""
         s = self.settings
-        shares = self._map_shares(scan, pose[None, :])
+        shares = self._map_shares(scan, place)
         if shares is None:
             return False
         judged, explained = shares
-        return bool(judged[0] >= s.switch_min_explained and explained[0] <= 1.0 - s.switch_min_explained)
+        return bool(np.all((judged >= s.switch_min_explained) & (explained <= 1.0 - s.switch_min_explained)))
 
     def _explained(self, scan: Scan, poses: NDArray[np.float64],
                    against: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
         """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
-        a mapped obstacle there (no hit cannot be judged: True). Given the filter's place ``against``, where the map
-        refutes that place a pose also counts where the map explains more of the scan's end points than it leaves
-        unexplained. The map refutes a place, the mirror of vouching, when it can judge (:meth:`_mapped_at`) at
-        least ``switch_min_explained`` of the end points there and explains at most ``1 - switch_min_explained``.
+        a mapped obstacle there (no hit cannot be judged: True). Given the filter's place ``against`` (its predicted
+        pose and the candidates within its support), where the map refutes that place a pose also counts where the
+        map explains more of the scan's end points than it leaves unexplained. The map refutes a pose, the mirror of
+        vouching, when it can judge (:meth:`_mapped_at`) at least ``switch_min_explained`` of the end points there
+        and explains at most ``1 - switch_min_explained``; it refutes the place when it refutes each of its poses:
+        the candidates are fitted to the scan, the prediction is not, and on long beams a pose a degree off in
+        heading leaves most end points unexplained where the place is right.
         While the filter's fit stays dropped and the map vouches for none of ``poses``, the
         place it vouched for as the best guess (moved by the odometry) stays vouched for: a person beside the robot
         after a kidnapping hides walls from the later scans, not the place."""
@@ -666,8 +670,10 @@ class HybridLocalizer:
             return np.ones(len(poses), dtype=bool)
         explained = scan_explained(self.grid_map, poses, scan)
         vouched = ~(explained < s.switch_min_explained)
-        if against is not None and not vouched.all() and self._refuted(scan, against):
-            vouched |= explained > _MOST
+        if against is not None:
+            most = ~vouched & (explained > _MOST)
+            if most.any() and self._refuted(scan, against):
+                vouched |= most
         if self._vouched is not None and self.mcl.fit_dropped and not vouched.any():
             place, then = self._vouched
             now = self.mcl.odometry.at(scan.stamp)
