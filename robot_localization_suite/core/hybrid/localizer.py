@@ -65,7 +65,9 @@ __all__ = ["HybridSettings", "HybridLocalizer", "ProposalSource"]
 
 _LOG = logging.getLogger(__name__)
 # Where the map refutes the filter's place, a candidate counts when the map explains more of the scan's end points
-# there than it leaves unexplained (HybridLocalizer._explained; docs/hybrid.md, "A start the map refutes").
+# there than it leaves unexplained; against a start on trial, also when it leaves unexplained at most this share of
+# what it leaves at the filter's place (HybridLocalizer._explained; docs/hybrid.md, "A start the map refutes", "The
+# campus in 5 honest blocks").
 _MOST = 0.5
 
 
@@ -111,6 +113,7 @@ class HybridLocalizer:
         self._images_dropped = 0  # images that came while one was being matched
         self.grid_map: GridMap | None = None
         self._seed_pending = True
+        self._on_trial = True  # seeded from candidates and not LOCALIZED since (_explained)
         self._better_count = 0  # consecutive updates with a candidate outside the support ahead of the estimate
         self._evidence = 0.0  # CUSUM of its log-odds (_recover)
         self._updates = 0
@@ -161,6 +164,7 @@ class HybridLocalizer:
         if self.monitor is not None:
             self.monitor.set_initial_pose(pose, covariance)
         self._seed_pending = False
+        self._on_trial = False
         self._better_count, self._evidence = 0, 0.0
         self._vouched = None
 
@@ -267,6 +271,8 @@ class HybridLocalizer:
             if verdict.details.get("pose_from") == "candidate":
                 self._vouched = (verdict.pose.copy(), self.mcl.odometry.at(scan.stamp))
             estimate = self._integrity(scan, verdict)
+            if estimate.status is LocalizerStatus.LOCALIZED:
+                self._on_trial = False
         if due:
             self._ask_in_background(scan, estimate)
         elif standing:
@@ -306,6 +312,7 @@ class HybridLocalizer:
 
     def _restart(self) -> None:
         self._seed_pending = True
+        self._on_trial = True
         self._latest = {}
         self._vouched = None
         self._better_count, self._evidence = 0, 0.0
@@ -652,6 +659,16 @@ class HybridLocalizer:
         judged, explained = shares
         return bool(np.all((judged >= s.switch_min_explained) & (explained <= 1.0 - s.switch_min_explained)))
 
+    def _explained_better(self, scan: Scan, explained: NDArray[np.float64],
+                          place: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """``(K,)`` whether the map leaves at each pose (its shares ``explained``) at most half of the scan's end points
+        it leaves unexplained at the best of the ``(P, 3)`` poses of the filter's place, where it can judge
+        (:meth:`_mapped_at`) at least ``switch_min_explained`` of them at each of those (:meth:`_explained`)."""
+        shares = self._map_shares(scan, place)
+        if shares is None or not np.all(shares[0] >= self.settings.switch_min_explained):
+            return np.zeros(len(explained), dtype=bool)
+        return np.asarray(1.0 - explained <= _MOST * (1.0 - shares[1].max()), dtype=bool)
+
     def _explained(self, scan: Scan, poses: NDArray[np.float64],
                    against: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
         """``(K,)`` whether the map vouches for each pose: ``switch_min_explained`` of the scan's end points lie near
@@ -661,7 +678,10 @@ class HybridLocalizer:
         vouching, when it can judge (:meth:`_mapped_at`) at least ``switch_min_explained`` of the end points there
         and explains at most ``1 - switch_min_explained``; it refutes the place when it refutes each of its poses:
         the candidates are fitted to the scan, the prediction is not, and on long beams a pose a degree off in
-        heading leaves most end points unexplained where the place is right.
+        heading leaves most end points unexplained where the place is right. While a start seeded from candidates
+        has not been LOCALIZED, a pose the map explains more than half of also counts where it leaves unexplained at
+        most half of what it leaves at the best pose of the place, judged there as above (:meth:`_explained_better`):
+        outdoors the truth itself is seldom explained at ``switch_min_explained``.
         While the filter's fit stays dropped and the map vouches for none of ``poses``, the
         place it vouched for as the best guess (moved by the odometry) stays vouched for: a person beside the robot
         after a kidnapping hides walls from the later scans, not the place."""
@@ -674,6 +694,8 @@ class HybridLocalizer:
             most = ~vouched & (explained > _MOST)
             if most.any() and self._refuted(scan, against):
                 vouched |= most
+            elif most.any() and self._on_trial:
+                vouched |= most & self._explained_better(scan, explained, against)
         if self._vouched is not None and self.mcl.fit_dropped and not vouched.any():
             place, then = self._vouched
             now = self.mcl.odometry.at(scan.stamp)

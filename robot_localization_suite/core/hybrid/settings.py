@@ -99,7 +99,9 @@ class HybridSettings(Settings):
         "share of the scan's end points lie within two cells of a mapped obstacle there: a place the map cannot "
         "vouch for is no reason to leave the estimate. Where the map refutes the filter's place (at its estimate and "
         "at every candidate within its support it judges at least this share of the end points and explains at "
-        "most 1 minus it), a candidate where it explains more than half counts; 0: any candidate (docs/hybrid.md)",
+        "most 1 minus it), a candidate where it explains more than half counts; and so does one where it leaves "
+        "unexplained at most half of what it leaves at that place, while the filter, seeded from candidates, has "
+        "not been LOCALIZED since; 0: any candidate (docs/hybrid.md)",
         low=0.0, high=1.0)
     inject_fraction: float = setting(
         0.5, "share of the particles replaced by draws around a clearly better candidate", low=0.0, low_open=True,
