@@ -650,24 +650,24 @@ class HybridLocalizer:
         return bool(laser_lead >= -s.ambiguity_log_odds and lead - laser_lead > s.ambiguity_log_odds
                     and self._explained(scan, pool[[rival]])[0])
 
-    def _refuted(self, scan: Scan, place: NDArray[np.float64]) -> bool:
-        """Whether the map refutes a place for ``scan``: each of its ``(K, 3)`` poses (:meth:`_explained`)."""
+    def _count_against(self, scan: Scan, explained: NDArray[np.float64],
+                       place: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """``(K,)`` whether poses whose shares of ``scan`` the map explains are ``explained`` count against the filter's
+        place, its ``(P, 3)`` poses (:meth:`_explained`). Only where the map judges (:meth:`_mapped_at`) at least
+        ``switch_min_explained`` of the end points at each of them: all count where it refutes the place (explains
+        at most ``1 - switch_min_explained`` at each); while a seeded start is on trial, those where it leaves
+        unexplained at most half of what it leaves at the best of them."""
         s = self.settings
+        none = np.zeros(len(explained), dtype=bool)
         shares = self._map_shares(scan, place)
-        if shares is None:
-            return False
-        judged, explained = shares
-        return bool(np.all((judged >= s.switch_min_explained) & (explained <= 1.0 - s.switch_min_explained)))
-
-    def _explained_better(self, scan: Scan, explained: NDArray[np.float64],
-                          place: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """``(K,)`` whether the map leaves at each pose (its shares ``explained``) at most half of the scan's end points
-        it leaves unexplained at the best of the ``(P, 3)`` poses of the filter's place, where it can judge
-        (:meth:`_mapped_at`) at least ``switch_min_explained`` of them at each of those (:meth:`_explained`)."""
-        shares = self._map_shares(scan, place)
-        if shares is None or not np.all(shares[0] >= self.settings.switch_min_explained):
-            return np.zeros(len(explained), dtype=bool)
-        return np.asarray(1.0 - explained <= _MOST * (1.0 - shares[1].max()), dtype=bool)
+        if shares is None or not np.all(shares[0] >= s.switch_min_explained):
+            return none
+        at_place = shares[1]
+        if np.all(at_place <= 1.0 - s.switch_min_explained):
+            return ~none
+        if not self._on_trial:
+            return none
+        return np.asarray(1.0 - explained <= _MOST * (1.0 - at_place.max()), dtype=bool)
 
     def _explained(self, scan: Scan, poses: NDArray[np.float64],
                    against: NDArray[np.float64] | None = None) -> NDArray[np.bool_]:
@@ -680,7 +680,7 @@ class HybridLocalizer:
         the candidates are fitted to the scan, the prediction is not, and on long beams a pose a degree off in
         heading leaves most end points unexplained where the place is right. While a start seeded from candidates
         has not been LOCALIZED, a pose the map explains more than half of also counts where it leaves unexplained at
-        most half of what it leaves at the best pose of the place, judged there as above (:meth:`_explained_better`):
+        most half of what it leaves at the best pose of the place, judged there as above (:meth:`_count_against`):
         outdoors the truth itself is seldom explained at ``switch_min_explained``.
         While the filter's fit stays dropped and the map vouches for none of ``poses``, the
         place it vouched for as the best guess (moved by the odometry) stays vouched for: a person beside the robot
@@ -692,10 +692,8 @@ class HybridLocalizer:
         vouched = ~(explained < s.switch_min_explained)
         if against is not None:
             most = ~vouched & (explained > _MOST)
-            if most.any() and self._refuted(scan, against):
-                vouched |= most
-            elif most.any() and self._on_trial:
-                vouched |= most & self._explained_better(scan, explained, against)
+            if most.any():
+                vouched |= most & self._count_against(scan, explained, against)
         if self._vouched is not None and self.mcl.fit_dropped and not vouched.any():
             place, then = self._vouched
             now = self.mcl.odometry.at(scan.stamp)
