@@ -142,12 +142,12 @@ def _end_class(open_unknown, occupied, clearance, inverse_resolution, gx, gy, ex
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution,
+def _partial_sum_kernel(table, credit, open_unknown, occupied, clearance, origin_x, origin_y, inverse_resolution,
                         poses, beam_x, beam_y, beam_floor, off_map, closed_off_map, out, unjudged_sum,
                         unjudged_count):
-    """As _field_sum_kernel with ``table`` crediting open unknown space (and off the map, ``off_map``), but an
-    end point there counts only if the beam reaches it through no mapped obstacle (else ``closed_*``). The
-    credited beams (the map cannot judge them) are also summed and counted on their own, per pose."""
+    """As _field_sum_kernel, but an end point in open unknown space (or off the map, ``off_map``) that the beam
+    reaches through no mapped obstacle scores at least ``credit`` (else as the table says, or ``closed_off_map``).
+    The credited beams (the map cannot judge them) are also summed and counted on their own, per pose."""
     height, width = table.shape
     for p in range(poses.shape[0]):
         x, y, c, s, gx, gy = _laser_at(poses, p, origin_x, origin_y, inverse_resolution)
@@ -163,12 +163,12 @@ def _partial_sum_kernel(table, closed_table, open_unknown, occupied, clearance, 
             if kind == _KNOWN:
                 total += max(table[iy, ix], beam_floor[b])
             elif kind == _CREDITED:
-                value = max(table[iy, ix] if inside else off_map, beam_floor[b])
+                value = max(max(table[iy, ix], credit) if inside else off_map, beam_floor[b])
                 total += value
                 credited += value
                 credited_count += 1
             else:  # through a wall: the unknown space behind it is no explanation
-                total += max(closed_table[iy, ix] if inside else closed_off_map, beam_floor[b])
+                total += max(table[iy, ix] if inside else closed_off_map, beam_floor[b])
         out[p] = total
         unjudged_sum[p] = credited
         unjudged_count[p] = credited_count
@@ -323,7 +323,7 @@ class LikelihoodFieldModel:
         self._far_hit_term = self.z_hit * far
         self._occupied = np.ascontiguousarray(grid_map.occupied_mask)
         self._near: dict[float, NDArray[np.bool_]] = {}
-        self._tables: dict[tuple[float, bool], tuple[NDArray[np.float32], float]] = {}
+        self._tables: dict[float, tuple[NDArray[np.float32], float]] = {}
 
     def floor_log_likelihood(self, max_range: float) -> float:
         """The lowest per-beam log-likelihood: a reading far from every obstacle."""
@@ -336,36 +336,38 @@ class LikelihoodFieldModel:
         unmapped = self.unmapped_weight * self.unmapped_decay * np.exp(-self.unmapped_decay * ranges_arr)
         return np.log(self._far_hit_term + self.z_rand / max_range + unmapped)
 
-    def table(self, max_range: float, *, partial_map: bool = False) -> tuple[NDArray[np.float32], float]:
+    def table(self, max_range: float) -> tuple[NDArray[np.float32], float]:
         """Per-cell ``log p`` ``(H, W)`` and the off-map value for readings up to ``max_range`` [m]."""
         _check_positive("max_range", max_range)
-        partial = partial_map and self.unknown_occupancy > 0.0
-        key = (float(max_range), partial)
+        key = float(max_range)
         if key not in self._tables:
-            # The tables of one range only (the scanner's range_max is fixed): each is 4 bytes a cell.
-            for stale in [k for k in self._tables if k[0] != key[0]]:
-                del self._tables[stale]
-            random_term = self.z_rand / key[0]
-            self._tables[key] = (self._log_table(random_term, partial),
-                                 math.log(self._off_map_hit_term[partial] + random_term))
+            # The table of one range only (the scanner's range_max is fixed): 4 bytes a cell.
+            self._tables.clear()
+            random_term = self.z_rand / key
+            self._tables[key] = (self._log_table(random_term), math.log(self._off_map_hit_term[False] + random_term))
         return self._tables[key]
 
-    def _log_table(self, random_term: float, partial: bool) -> NDArray[np.float32]:
-        """``log(z_hit * hit + random_term)`` per cell, in blocks of rows: no float64 copy of a large map is held.
+    def unknown_credit(self, max_range: float) -> tuple[float, float]:
+        """With ``unknown_occupancy``: the least ``log p`` of an end point in open unknown space, as ``table``
+        rounds it, and the value off the map, for readings up to ``max_range`` [m].
 
-        ``partial``: in open unknown cells ``hit`` is at least ``unknown_occupancy``, one value for all of
-        them, so no slope pulls end points into unknown space; none behind closed walls, where no beam reaches.
-        """
+        One value for all of open unknown space, so no slope pulls end points into it; in a cell the
+        credit is ``max(table, credit)``, the table made with ``hit`` at least ``unknown_occupancy`` there,
+        without a second map-sized table."""
+        _check_positive("max_range", max_range)
+        random_term = self.z_rand / float(max_range)
+        credit = np.log(self.z_hit * np.array([self.unknown_occupancy]) + random_term).astype(np.float32)
+        return float(credit[0]), math.log(self._off_map_hit_term[True] + random_term)
+
+    def _log_table(self, random_term: float) -> NDArray[np.float32]:
+        """``log(z_hit * hit + random_term)`` per cell, in blocks of rows: no float64 copy of a large map is held."""
         distance = self.grid_map.distance_field()
-        open_unknown = self.grid_map.open_unknown()[0] if partial else None
         table = np.empty(distance.shape, dtype=np.float32)
         rows = max(1, _TABLE_BLOCK_CELLS // max(1, distance.shape[1]))
         for start in range(0, distance.shape[0], rows):
             block = slice(start, start + rows)
             capped = np.minimum(distance[block], np.float32(self.max_distance)).astype(np.float64)
             hit = np.exp(-(capped**2) / (2.0 * self.sigma_hit**2))
-            if open_unknown is not None:
-                hit = np.where(open_unknown[block], np.maximum(hit, self.unknown_occupancy), hit)
             table[block] = np.log(self.z_hit * hit + random_term)
         return table
 
@@ -404,8 +406,8 @@ class LikelihoodFieldModel:
         """
         if self.unknown_occupancy <= 0.0:
             raise ValueError("partial_log_likelihood needs unknown_occupancy > 0")
-        table, off_map = self.table(max_range, partial_map=True)
-        closed_table, closed_off_map = self.table(max_range)
+        table, closed_off_map = self.table(max_range)
+        credit, off_map = self.unknown_credit(max_range)
         open_unknown, _ = self.grid_map.open_unknown()
         poses_arr = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
         beam_x, beam_y = _beam_offsets(angles, ranges)
@@ -413,7 +415,7 @@ class LikelihoodFieldModel:
         unjudged_sum = np.empty_like(out)
         unjudged_count = np.empty(poses_arr.shape[0], dtype=np.int64)
         origin = self.grid_map.origin
-        _partial_sum_kernel(table, closed_table, open_unknown, self._occupied,
+        _partial_sum_kernel(table, credit, open_unknown, self._occupied,
                             np.ascontiguousarray(self.grid_map.distance_field()), float(origin[0]), float(origin[1]),
                             1.0 / self.grid_map.resolution, poses_arr, beam_x, beam_y,
                             self.beam_floors(ranges, max_range), float(off_map),
