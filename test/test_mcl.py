@@ -604,8 +604,10 @@ def test_the_field_table_made_in_blocks_of_rows_is_the_formula_at_every_cell(mon
     credited = np.where(grid.open_unknown()[0], np.maximum(hit, 0.8), hit)
     np.testing.assert_array_equal(np.where(grid.open_unknown()[0], np.maximum(table, credit), table),
                                   np.log(0.5 * credited + 0.05).astype(np.float32))
-    # another range replaces the table of the last one: the scanner's range_max is fixed, and each is a map's size
+    # another range replaces the table of the last one: the scanner's range_max is fixed, and each is a map's size;
+    # scoring on a partial map adds none
     model.table(20.0)
+    model.partial_log_likelihood(np.array([[1.5, 1.0, math.pi]]), np.array([0.0]), np.array([1.0]), max_range=20.0)
     assert set(model._tables) == {20.0}
 
 
