@@ -351,8 +351,8 @@ class LikelihoodFieldModel:
         """With ``unknown_occupancy``: the least ``log p`` of an end point in open unknown space, as ``table``
         rounds it, and the value off the map, for readings up to ``max_range`` [m].
 
-        One value for all of open unknown space, so no slope pulls end points into it; in a cell the
-        credit is ``max(table, credit)``, the table made with ``hit`` at least ``unknown_occupancy`` there,
+        One value for all of open unknown space, so no slope pulls end points into it. An end point there
+        scores ``max(table, credit)``: what the table would hold with ``hit`` at least ``unknown_occupancy``,
         without a second map-sized table."""
         _check_positive("max_range", max_range)
         random_term = self.z_rand / float(max_range)
