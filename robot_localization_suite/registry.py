@@ -68,6 +68,9 @@ class NodeSettings(Settings):
                              low=-100.0, high=100.0)
     laser_yaw: float = setting(0.0, "laser heading in the base frame (fallback as laser_x)", unit="rad",
                                low=-3.1416, high=3.1416)
+    laser_upside_down: bool = setting(False, "the laser is mounted upside down, its beam angles turning clockwise "
+                                      "seen from above (fallback as laser_x; /tf_static says so by a roll or pitch "
+                                      "of pi)")
     tf_broadcast: bool = setting(True, "publish map -> odom on /tf (nav2)")
     global_frame_id: str = setting("map", "frame of the map, of the estimates and of accepted initial poses (nav2)")
     odom_frame_id: str = setting("odom", "odometry frame (nav2)")
@@ -100,7 +103,7 @@ class NodeSettings(Settings):
     @property
     def mount(self) -> LaserMount:
         """The laser mount of the parameters (the fallback when /tf_static has none)."""
-        return LaserMount(self.laser_x, self.laser_y, self.laser_yaw)
+        return LaserMount(self.laser_x, self.laser_y, self.laser_yaw, self.laser_upside_down)
 
     @property
     def initial_pose(self) -> tuple[float, float, float]:

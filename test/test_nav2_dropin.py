@@ -29,7 +29,7 @@ from robot_localization_suite.tools.live_check import NodeProcess as Process
 ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.skipif(TFMessage is None, reason="tf2_msgs is not installed (make builds it)")
 
-MOUNT = (0.2, 0.05, 0.0)  # on /tf_static only: the params file leaves laser_x/y/yaw at 0
+MOUNT = (0.2, 0.05, 0.0)  # on /tf_static only (upside down): the params file leaves laser_x/y/yaw at 0
 START = (1.5, 9.0, 0.0)
 
 
@@ -41,7 +41,7 @@ def write_world(folder: Path) -> tuple[Path, Path]:
         "motion": {"linear_speed": 0.6, "angular_speed": 1.0,
                    "waypoints": [[3.95, 9.0], [3.95, 6.8], [1.5, 6.0], [1.6, 3.2], [1.5, 6.0], [3.95, 6.8],
                                  [3.95, 9.0]]},
-        "laser": {"mount": list(MOUNT)},
+        "laser": {"mount": list(MOUNT), "upside_down": True},  # a roll of pi on /tf_static, as nav2_amcl reads it
     }
     scenario_path = folder / "corridor.yaml"
     scenario_path.write_text(yaml.safe_dump(scenario))
@@ -164,7 +164,7 @@ def test_brought_up_like_nav2_it_broadcasts_map_to_odom_on_the_ground_truth(brin
     assert line.split(", ") == ["initial_pose.z", "save_pose_rate", "scan_topic"]
     assert manager.change_state("amcl", "activate", 30.0)
     amcl.wait_for(r"starting from initial_pose\.\* parameters", 10)
-    amcl.wait_for(r"laser mount from /tf_static base_link -> laser: \(0\.2 m, 0\.05 m, 0 rad\)", 30)
+    amcl.wait_for(r"laser mount from /tf_static base_link -> laser: \(0\.2 m, 0\.05 m, 0 rad\), upside down", 30)
     # the robot has moved on since the start: its pose is given again, through nav2's service (tracking mode)
     assert listener.spin_until(lambda: bool(listener.truth), 30)
     listener.spin_for(0.5)  # the truth of now, not of the last spin (odometry before activation is not kept)

@@ -90,3 +90,62 @@ def test_map_to_odom_composed_with_odometry_gives_the_estimate() -> None:
     refused = conversions.initial_pose_to_msg(1.0, run.truth[0], np.eye(3), frame_id="odom")
     assert adapter.on_initial_pose_msg(refused) is False
     assert "frame 'odom'" in logged[-1][1] and "global frame 'map'" in logged[-1][1]
+
+
+def _matrix(transform) -> np.ndarray:  # noqa: ANN001
+    """The 4 x 4 homogeneous matrix of a geometry_msgs/TransformStamped (scipy's quaternion convention)."""
+    from scipy.spatial.transform import Rotation
+
+    t, q = transform.transform.translation, transform.transform.rotation
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    out[:3, 3] = [t.x, t.y, t.z]
+    return out
+
+
+def test_an_upside_down_laser_on_a_chain_of_static_frames_sees_its_beams_where_3d_rotations_put_them() -> None:
+    """base -> plate (rolled by pi) -> bracket (level in it) -> laser (pitched by pi): every beam's end point in
+    the base frame, from the planar lookup and a level scan (LaserMount.level), is where the 3-D transforms
+    put it; a level chain stays level, and a frame upside down on /tf is refused."""
+    from scipy.spatial.transform import Rotation
+
+    from robot_localization_suite.core.scan import LaserMount, Scan
+
+    def message(parent: str, child: str, xyz, rpy) -> TFMessage:  # noqa: ANN001
+        msg = transform_to_msg(0.0, parent, child, np.array([xyz[0], xyz[1], 0.0]))
+        msg.transform.translation.z = xyz[2]
+        q = Rotation.from_euler("xyz", rpy).as_quat()
+        msg.transform.rotation.x, msg.transform.rotation.y, msg.transform.rotation.z, msg.transform.rotation.w = q
+        return TFMessage(transforms=[msg])
+
+    links = [message("base_link", "plate", [0.3, -0.1, 0.5], [math.pi, 0.0, 0.4]),
+             message("plate", "bracket", [0.05, 0.2, -0.02], [0.0, 0.0, -1.1]),
+             message("bracket", "laser", [-0.1, 0.07, 0.0], [0.0, math.pi, 0.25])]
+    buffer, logged = _buffer()
+    for msg in links:
+        buffer.add_message(msg, static=True)
+    assert buffer.above("laser") == ["bracket", "plate", "base_link"]
+    found = buffer.lookup_mount("base_link", "laser", static_only=True)
+    assert found is not None
+    pose, upside_down = found
+    assert not upside_down  # two half-turns: the laser is level on the base
+    in_base = _matrix(links[0].transforms[0]) @ _matrix(links[1].transforms[0]) @ _matrix(links[2].transforms[0])
+    angles = np.linspace(-2.0, 2.0, 9)
+    ranges = np.linspace(1.0, 3.0, 9)
+    beams = np.stack([ranges * np.cos(angles), ranges * np.sin(angles), np.zeros(9), np.ones(9)])
+    for mount_frame, expect_upside_down in (("base_link", False), ("plate", True)):
+        found = buffer.lookup_mount(mount_frame, "laser", static_only=True)
+        assert found is not None and found[1] is expect_upside_down
+        mount = LaserMount(*map(float, found[0]), upside_down=found[1])
+        level = mount.level(Scan(0.0, angles, ranges, 0.1, 10.0))
+        assert np.all(np.diff(level.angles) > 0)  # still increasing
+        frame = in_base if mount_frame == "base_link" else _matrix(links[1].transforms[0]) @ _matrix(
+            links[2].transforms[0])
+        truth = (frame @ beams)[:2].T
+        # an upside-down laser's beams come reordered (angles increasing), so its end points too
+        assert level.hit_endpoints(mount.pose) == pytest.approx(truth[::-1] if mount.upside_down else truth, abs=1e-9)
+    assert buffer.lookup("plate", "laser", static_only=True) is None  # upside down: no planar pose
+    assert any("upside down in plate" in text for _, text in logged)
+    # on /tf (dynamic) an upside-down frame is refused, naming it
+    assert buffer.add_message(message("odom", "base_link", [1.0, 0.0, 0.0], [math.pi, 0.0, 0.0]), static=False) == []
+    assert any("odom -> base_link on /tf: its z axis points down" in text for _, text in logged)

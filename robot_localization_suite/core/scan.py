@@ -25,11 +25,17 @@ __all__ = ["Scan", "LaserMount"]
 
 @dataclass(frozen=True)
 class LaserMount:
-    """Pose of the laser in the robot base frame [m, m, rad] (tf2 is not available)."""
+    """Pose of the laser in the robot base frame [m, m, rad] (tf2 is not available).
+
+    ``yaw`` is the heading of the laser's x axis. ``upside_down``: its z axis points down (a laser
+    mounted upside down, roll or pitch of pi), so its beam angles turn clockwise seen from above:
+    :meth:`level` gives the scan a level laser there would have read (README, "ROS interface").
+    """
 
     x: float = 0.0
     y: float = 0.0
     yaw: float = 0.0
+    upside_down: bool = False
 
     @property
     def pose(self) -> NDArray[np.float64]:
@@ -38,6 +44,13 @@ class LaserMount:
     def laser_poses(self, base_poses: ArrayLike) -> NDArray[np.float64]:
         """Laser poses ``(N, 3)`` in the map for robot base poses ``(N, 3)``."""
         return compose(np.asarray(base_poses, dtype=np.float64), self.pose)
+
+    def level(self, scan: Scan) -> Scan:
+        """``scan`` as a level laser at this pose reads it: beam angle ``a`` of an upside-down laser is
+        ``-a`` of a level one (beams reordered so that the angles still increase); unchanged otherwise."""
+        if not self.upside_down:
+            return scan
+        return Scan(scan.stamp, -scan.angles[::-1], scan.ranges[::-1].copy(), scan.range_min, scan.range_max)
 
 
 @dataclass(frozen=True, eq=False)

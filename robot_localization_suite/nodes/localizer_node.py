@@ -555,11 +555,13 @@ class LocalizerNode(LifecycleNode):
         the first (best-effort) scans; with a publisher on /tf_static, scans wait up to ``_MOUNT_WAIT_S``.
         """
         base = self.node_settings.base_frame_id
-        pose = self.tf_buffer.lookup(base, laser_frame, static_only=True) if laser_frame else None
-        if pose is not None:
+        found = self.tf_buffer.lookup_mount(base, laser_frame, static_only=True) if laser_frame else None
+        if found is not None:
+            pose, upside_down = found
             self.get_logger().info(f"laser mount from /tf_static {base} -> {laser_frame}: "
-                                   f"({pose[0]:g} m, {pose[1]:g} m, {pose[2]:g} rad)")
-            return LaserMount(float(pose[0]), float(pose[1]), float(pose[2]))
+                                   f"({pose[0]:g} m, {pose[1]:g} m, {pose[2]:g} rad)"
+                                   f"{', upside down' if upside_down else ''}")
+            return LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
         now = time.monotonic()
         self._mount_wait_since = self._mount_wait_since or now
         if now - self._mount_wait_since < _MOUNT_WAIT_S and self.count_publishers("/tf_static"):
@@ -567,7 +569,8 @@ class LocalizerNode(LifecycleNode):
                            f"{laser_frame or '(no frame)'} on /tf_static before using laser_x/y/yaw")
             return None
         mount = self.node_settings.mount
-        self.get_logger().info(f"laser mount from laser_x/y/yaw ({mount.x:g} m, {mount.y:g} m, {mount.yaw:g} rad): "
+        self.get_logger().info(f"laser mount from laser_x/y/yaw ({mount.x:g} m, {mount.y:g} m, {mount.yaw:g} rad)"
+                               f"{', upside down' if mount.upside_down else ''}: "
                                f"/tf_static has no {base} -> {laser_frame or '(no frame)'}")
         return mount
 

@@ -9,7 +9,9 @@ directly with the messages of a bag, so both exercise the same code.
 Mounting offset: core localizers estimate the pose of the *laser*. The adapter
 gives them laser odometry (``odom (+) mount``) and laser initial poses, and
 turns their laser pose back into the base pose (``laser (+) mount^-1``), which
-is exact for a rigid mount and keeps every core method free of the offset. A
+is exact for a rigid mount and keeps every core method free of the offset. An
+upside-down laser's scans are given to them as a level laser there would read
+them (``LaserMount.level``). A
 node that learns the mount from ``/tf_static`` only with the first scan defers
 it (``defer_mount``): odometry is held until :meth:`LocalizerAdapter.set_mount`.
 
@@ -445,7 +447,7 @@ class LocalizerAdapter:
             self.log("warn", "no_map", "scan received before any map: waiting for /map or map_yaml")
             return None
         try:
-            scan = conversions.scan_from_msg(msg)
+            scan = self.mount.level(conversions.scan_from_msg(msg))
         except ScanError as exc:
             self.log("warn", "bad_scan", f"skipping scan: {exc}")
             return None
@@ -483,12 +485,12 @@ class LocalizerAdapter:
         """
         key = self._preparation_key(msg)
         if isinstance(self.localizer, Preparer):
-            self.localizer.prepare(conversions.scan_from_msg(msg))
+            self.localizer.prepare(self.mount.level(conversions.scan_from_msg(msg)))
         self._prepared_key = key
 
     def _preparation_key(self, msg: Any) -> tuple[Any, ...]:
         return (id(self._current_map), len(msg.ranges), float(msg.angle_min), float(msg.angle_increment),
-                float(msg.range_min), float(msg.range_max))
+                float(msg.range_min), float(msg.range_max), self.mount.upside_down)
 
     def on_image_msg(self, msg: Any) -> AdapterOutput | None:
         try:

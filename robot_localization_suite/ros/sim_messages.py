@@ -68,8 +68,10 @@ class StepMessages:
         if TFMessage is None:
             return []
         s = self.settings
-        mount = np.asarray(self.simulator.scenario.laser.mount, dtype=np.float64)
-        return [("tf_static", tf_message([transform_to_msg(self.epoch, s.base_frame, s.laser_frame, mount)]))]
+        laser = self.simulator.scenario.laser
+        mount = np.asarray(laser.mount, dtype=np.float64)
+        return [("tf_static", tf_message([transform_to_msg(self.epoch, s.base_frame, s.laser_frame, mount,
+                                                           upside_down=laser.upside_down)]))]
 
     def step_messages(self, step: SimulationStep) -> list[tuple[str, Any]]:
         """``(topic, message)`` of a step in publication order (odometry before the scan it belongs to)."""

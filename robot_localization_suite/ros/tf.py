@@ -2,9 +2,11 @@
 
 A localizer reads two things from TF, as nav2_amcl does: odometry (``odom -> base``, through
 any chain of frames between them) and the laser's mount (``base -> laser``, on ``/tf_static``),
-and writes one: ``map -> odom``. Transforms are projected on the plane (x, y, yaw); one with a
-non-finite value or a quaternion whose norm is off by more than tf2's tolerance is refused, as
-is one stamped more than ``transform_tolerance`` behind its frame's newest.
+and writes one: ``map -> odom``. Transforms are projected on the plane (x, y, yaw of the child's x
+axis), keeping one more bit: whether the child's z axis points down (a laser mounted upside down,
+whose angles then turn the other way; static links only). One with a non-finite value or a
+quaternion whose norm is off by more than tf2's tolerance is refused, as is one stamped more than
+``transform_tolerance`` behind its frame's newest.
 ``tf2_msgs`` may be missing (a PyPI install without ``make``'s interfaces): :data:`TFMessage`
 is then None and the callers say so.
 """
@@ -47,16 +49,19 @@ def frame_name(frame_id: str) -> str:
 
 @dataclass(frozen=True)
 class PlanarTransform:
-    """``parent -> child`` at ``stamp`` [s]: the child frame's pose ``(x, y, yaw)`` in the parent."""
+    """``parent -> child`` at ``stamp`` [s]: the child frame's pose ``(x, y, yaw)`` in the parent, and whether
+    the child is ``upside_down`` in it (its z axis points down: an angle ``a`` in the child is ``yaw - a``)."""
 
     parent: str
     child: str
     stamp: float
     pose: NDArray[np.float64]
+    upside_down: bool = False
 
 
 def transform_from_msg(msg: Any) -> PlanarTransform:
-    """``geometry_msgs/TransformStamped`` -> :class:`PlanarTransform` (z, roll and pitch dropped).
+    """``geometry_msgs/TransformStamped`` -> :class:`PlanarTransform` (z dropped; roll and pitch kept only as
+    whether the child's z axis points down).
 
     Raises:
         TransformError: a non-finite value, or a quaternion that is not a unit one, naming the frames.
@@ -69,20 +74,31 @@ def transform_from_msg(msg: Any) -> PlanarTransform:
     norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
     if abs(norm - 1.0) > QUATERNION_TOLERANCE:
         raise TransformError(f"transform {parent} -> {child} has a quaternion of norm {norm:.4g}, not a rotation")
-    yaw = quaternion_to_yaw(q.x, q.y, q.z, q.w)
-    return PlanarTransform(parent, child, stamp_to_seconds(msg.header.stamp), np.array([t.x, t.y, yaw]))
+    yaw = quaternion_to_yaw(q.x, q.y, q.z, q.w)  # the heading of the child's x axis
+    z_axis_up = (1.0 - 2.0 * (q.x * q.x + q.y * q.y)) / (norm * norm)  # z of the child's z axis in the parent
+    return PlanarTransform(parent, child, stamp_to_seconds(msg.header.stamp), np.array([t.x, t.y, yaw]),
+                           upside_down=bool(z_axis_up < 0.0))
 
 
-def transform_to_msg(stamp: float, parent: str, child: str, pose: NDArray[np.float64]) -> TransformStamped:
-    """A planar pose as ``geometry_msgs/TransformStamped`` ``parent -> child`` at ``stamp`` [s]."""
+def transform_to_msg(stamp: float, parent: str, child: str, pose: NDArray[np.float64], *,
+                     upside_down: bool = False) -> TransformStamped:
+    """A planar pose as ``geometry_msgs/TransformStamped`` ``parent -> child`` at ``stamp`` [s]
+    (``upside_down``: the child also rolled by pi about its x axis)."""
     msg = TransformStamped()
     msg.header.stamp = seconds_to_stamp(stamp)
     msg.header.frame_id = parent
     msg.child_frame_id = child
     msg.transform.translation.x, msg.transform.translation.y = float(pose[0]), float(pose[1])
     r = msg.transform.rotation
-    r.x, r.y, r.z, r.w = yaw_to_quaternion(float(pose[2]))
+    x, y, z, w = yaw_to_quaternion(float(pose[2]))
+    # yaw then a roll of pi: (w, z) of the yaw move to (x, y)
+    r.x, r.y, r.z, r.w = (w, z, 0.0, 0.0) if upside_down else (x, y, z, w)
     return msg
+
+
+def _in_upside_down(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A pose given in an upside-down frame, in the level frame with the same x axis (y and yaw turn over)."""
+    return np.array([pose[0], -pose[1], -pose[2]])
 
 
 def tf_message(transforms: Iterable[TransformStamped]) -> Any:
@@ -119,7 +135,7 @@ class TransformBuffer:
         self.time_jump_reset_s = float(time_jump_reset_s)
         self.ignore = set(ignore)
         self._parent: dict[str, str] = {}
-        self._static: dict[str, NDArray[np.float64]] = {}
+        self._static: dict[str, tuple[NDArray[np.float64], bool]] = {}  # child: (pose, upside down)
         self._dynamic: dict[str, OdometryGate] = {}
         self._newest: dict[str, float] = {}
 
@@ -143,9 +159,13 @@ class TransformBuffer:
         child = transform.child
         self._parent[child] = transform.parent
         if static:
-            self._static[child] = transform.pose
+            self._static[child] = (transform.pose, transform.upside_down)
             self._dynamic.pop(child, None)
             return True
+        if transform.upside_down:
+            self.log("warn", "tf_dynamic_upside_down", f"ignoring transform {transform.parent} -> {child} on /tf: its z axis "
+                     "points down, which only a static transform (an upside-down laser on /tf_static) may do")
+            return False
         self._static.pop(child, None)
         history = self._dynamic.setdefault(child, OdometryGate(time_jump_s=self.time_jump_reset_s))
         newest = self._newest.get(child)
@@ -168,26 +188,52 @@ class TransformBuffer:
             frames.append(up)
         return frames
 
+    def above(self, frame: str) -> list[str]:
+        """The frames above ``frame``, its parent first."""
+        frames = [frame]
+        while (up := self._parent.get(frames[-1])) is not None and up not in frames:
+            frames.append(up)
+        return frames[1:]
+
     def lookup(self, parent: str, child: str, stamp: float | None = None, *, static_only: bool = False) -> NDArray[np.float64] | None:
         """The pose of ``child`` in ``parent`` at ``stamp`` (dynamic links interpolated; None: the newest).
 
-        None when the frames are not connected, or (``static_only``) a link on the way is dynamic.
+        None when the frames are not connected, (``static_only``) a link on the way is dynamic, or ``child``
+        is upside down in ``parent`` (:meth:`lookup_mount` takes that one).
         """
+        found = self.lookup_mount(parent, child, stamp, static_only=static_only)
+        if found is None:
+            return None
+        pose, upside_down = found
+        if upside_down:
+            self.log("warn", "tf_upside_down", f"{child} is upside down in {parent} (its z axis points down): "
+                     "not usable as a planar pose")
+            return None
+        return pose
+
+    def lookup_mount(self, parent: str, child: str, stamp: float | None = None, *,
+                     static_only: bool = False) -> tuple[NDArray[np.float64], bool] | None:
+        """As :meth:`lookup`, with whether ``child`` is upside down in ``parent`` (a laser's mount)."""
         frames = self.chain(parent, child)
         if frames is None:
             return None
         pose: NDArray[np.float64] = np.zeros(3)
-        for frame in frames[:-1]:
-            link = self._static.get(frame)
-            if link is None:
+        upside_down = False
+        for frame in frames[:-1]:  # from the child up: each link is the pose of ``frame`` in its parent
+            static = self._static.get(frame)
+            if static is None:
                 if static_only:
                     return None
                 history = self._dynamic[frame]
                 link = history.latest if stamp is None else history.at(stamp)
                 if link is None:
                     return None
-            pose = compose(link, pose)
-        return pose
+                flipped = False
+            else:
+                link, flipped = static
+            pose = compose(link, _in_upside_down(pose) if flipped else pose)
+            upside_down ^= flipped
+        return pose, upside_down
 
 
 def map_to_odom(map_to_base: NDArray[np.float64], odom_to_base: NDArray[np.float64]) -> NDArray[np.float64]:

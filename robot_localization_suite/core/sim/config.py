@@ -127,6 +127,8 @@ class LaserConfig:
             ``[range_min, range_max)`` (Probabilistic Robotics' ``p_rand``).
         dropout_prob: probability that a beam returns nothing (``+inf``).
         mount: laser pose in the robot base frame [m, m, rad].
+        upside_down: the laser is mounted upside down (rolled by pi): its beam angle ``a``
+            looks along ``mount yaw - a`` in the base frame, and ``/tf_static`` says so.
     """
 
     beams: int = 360
@@ -140,8 +142,11 @@ class LaserConfig:
     outlier_prob: float = 0.015
     dropout_prob: float = 0.005
     mount: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    upside_down: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.upside_down, bool):
+            raise ScenarioError(f"laser.upside_down must be true or false, got {self.upside_down!r}")
         if isinstance(self.beams, bool) or not isinstance(self.beams, (int, np.integer)) or self.beams < 2:
             raise ScenarioError(f"laser.beams must be an integer >= 2, got {self.beams!r}")
         fov = finite_value("laser.fov_deg", self.fov_deg)

@@ -87,7 +87,7 @@ def _dataclass_fields(cls: type, name: str, raw: dict[str, Any], integers: Seque
     for key, value in raw.items():
         if key in integers:
             out[key] = _integer(f"{name}.{key}", value)
-        elif isinstance(value, str):
+        elif isinstance(value, (str, bool)):  # strings and flags as given (the dataclass checks their kind)
             out[key] = value
         elif key == "mount":
             out[key] = pose_value(f"{name}.mount", value)

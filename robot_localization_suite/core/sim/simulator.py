@@ -209,6 +209,8 @@ class Simulator:
         self.seed = int(scenario.seed if seed is None else seed)
         laser = scenario.laser
         self.angles = laser.angles
+        # the beams' directions from a level laser at the mount's pose (an upside-down one turns the other way)
+        self._directions = -self.angles if laser.upside_down else self.angles
         self._grid_map = scenario.grid_map
         self._raycaster = RayCaster(scenario.grid_map, max_range=laser.range_max)
         self._map_changes_done = 0
@@ -370,9 +372,9 @@ class Simulator:
         laser = self.scenario.laser
         pose = np.asarray(laser_pose, dtype=np.float64)
         circles = np.asarray(people, dtype=np.float64)  # no copy for the (K, 3) float64 of people_at
-        exact = self._raycaster.cast(pose, self.angles).astype(np.float64)
+        exact = self._raycaster.cast(pose, self._directions).astype(np.float64)
         if len(circles):
-            exact = np.minimum(exact, ray_circle_ranges(pose[:2], pose[2] + self.angles, circles))
+            exact = np.minimum(exact, ray_circle_ranges(pose[:2], pose[2] + self._directions, circles))
         return apply_range_noise(
             exact,
             range_min=laser.range_min,
