@@ -83,6 +83,7 @@ def evaluate(
     """Recall@k of each row of the module docstring over the scans, and query times."""
     mount = mount or LaserMount()
     to_base = inverse(mount.pose)
+    scans = [mount.level(scan) for scan in scans]
     variants = {
         "final, idf": settings,
         "final, no idf": replace(settings, use_idf=False),

@@ -186,7 +186,7 @@ def replay_rate(bag_dir: Path, localizer: str, mode: str = "global") -> dict[str
 
     reference = load_reference(bag_dir)
     grid_map, _ = resolve_map(reference, None)
-    spec = registry_spec(localizer).for_bag(reference.name)
+    spec = registry_spec(localizer).for_bag(reference.name, laser_mounts=reference.laser_mounts)
     record = replay_localizer(reference, spec, grid_map, mode=mode, sample_rss=False)
     fields, _ = summarize_run(record, reference)
     return fields

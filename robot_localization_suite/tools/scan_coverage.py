@@ -53,7 +53,7 @@ def bag_scan_coverage(
 
     The truth (robot base poses) is interpolated at each scan's stamp, never across a
     kidnapping (``metrics.detect_kidnappings`` with the bag's odometry), and the laser placed
-    by ``mount``. ``tolerance`` [m] defaults to two map cells.
+    by ``mount`` (its scans levelled). ``tolerance`` [m] defaults to two map cells.
 
     Raises:
         BagError: the bag cannot be read, or has no scan or no ground truth.
@@ -75,7 +75,9 @@ def bag_scan_coverage(
     stamps = np.array([scan.stamp for scan in scans])
     base = metrics.interpolate_poses(ground_truth, stamps,
                                      breaks=metrics.detect_kidnappings(ground_truth, odometry))
-    laser = (mount or LaserMount()).laser_poses(base)
+    mount = mount or LaserMount()
+    laser = mount.laser_poses(base)
+    scans = [mount.level(scan) for scan in scans]
     beams = max(scan.beam_count for scan in scans)
     ranges = np.full((len(scans), beams), np.nan)
     angles = np.zeros((len(scans), beams))

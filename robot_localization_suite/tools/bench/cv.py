@@ -252,7 +252,7 @@ def run_cv(
                         entries[spec.name] = {"skipped": skip}
                         continue
                     entries[spec.name] = {}  # the planned order; dropped if it stays empty (no global_fix)
-                    run_spec = spec.for_bag(block.name, reference.odometry_noise)
+                    run_spec = spec.for_bag(block.name, reference.odometry_noise, reference.laser_mounts)
                     planned += [(mode, block.name, run_spec, kind, reference, maps[kind], str(block.maps[kind]))
                                 for kind in MAP_KINDS]
     if executor is None:

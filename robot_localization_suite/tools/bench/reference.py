@@ -12,7 +12,7 @@ import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,7 @@ from ...core import metrics
 from ...core.errors import MapError
 from ...core.grid_map import GridMap, load_map_yaml
 from ...core.motion import ODOMETRY_NOISE_KEY, read_odometry_noise
+from ...core.scan import LaserMount
 from ...core.sim.config import REINITIALIZE_TOPIC as _REINITIALIZE
 
 if TYPE_CHECKING:
@@ -48,6 +49,7 @@ IMAGE_TOPIC = "/camera/image_raw"
 ODOM_TOPIC = "/odom"
 TRUTH_TOPIC = "/ground_truth"
 MAP_TOPIC = "/map"
+TF_STATIC_TOPIC = "/tf_static"
 # A reinitialization request recorded by scan_sim (docs/simulator.md): the replay calls reinitialize().
 REINITIALIZE_TOPIC = "/" + _REINITIALIZE
 
@@ -68,6 +70,8 @@ class BagReference:
     map_change_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s] of later /map
     reinitialize_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s]
     odometry_noise: dict[str, float] | None = None  # alpha1..alpha4 the bag declares for its /odom, if it does
+    # the laser's mount in each frame above the scans' on the bag's /tf_static (LocalizerSpec.for_bag takes it)
+    laser_mounts: dict[str, LaserMount] = field(default_factory=dict)
 
     @property
     def has_scan(self) -> bool:
@@ -120,9 +124,12 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
     maps_seen = 0
     map_changes: list[float] = []
     requests: list[float] = []
-    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC, REINITIALIZE_TOPIC])
+    static_tf = []
+    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC, REINITIALIZE_TOPIC, TF_STATIC_TOPIC])
     for item in messages:
-        if item.topic == TRUTH_TOPIC:
+        if item.topic == TF_STATIC_TOPIC:
+            static_tf.append(item.msg)
+        elif item.topic == TRUTH_TOPIC:
             truth_msgs.append(item)
         elif item.topic == ODOM_TOPIC:
             odom_msgs.append(item)
@@ -155,7 +162,35 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         map_change_stamps=np.array(map_changes, dtype=np.float64),
         reinitialize_stamps=np.array(requests, dtype=np.float64),
         odometry_noise=odometry_noise,
+        laser_mounts=_laser_mounts(path, static_tf) if static_tf and SCAN_TOPIC in topics else {},
     )
+
+
+def _laser_mounts(path: Path, static_tf: list[Any]) -> dict[str, LaserMount]:
+    """The laser's mount in every frame above the first scan's on the bag's ``/tf_static`` messages."""
+    from ...ros.bag import read_bag
+    from ...ros.tf import TransformBuffer, frame_name
+
+    def log(level: str, key: str, text: str) -> None:
+        LOG.warning("bag %s: %s", path.name, text)
+
+    scans = read_bag(path, [SCAN_TOPIC])
+    try:
+        laser = frame_name(next(scans).msg.header.frame_id)
+    except StopIteration:
+        return {}
+    finally:
+        scans.close()
+    buffer = TransformBuffer(log)
+    for msg in static_tf:
+        buffer.add_message(msg, static=True)
+    mounts = {}
+    for frame in buffer.above(laser):
+        found = buffer.lookup_mount(frame, laser, static_only=True)
+        if found is not None:
+            pose, upside_down = found
+            mounts[frame] = LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
+    return mounts
 
 
 def _declared_odometry_noise(path: Path, custom_data: dict[str, str]) -> dict[str, float] | None:

@@ -48,7 +48,7 @@ def _plan(
             elif reason:
                 yield reference, spec, reason
             else:
-                yield reference, spec.for_bag(reference.name, reference.odometry_noise), None
+                yield reference, spec.for_bag(reference.name, reference.odometry_noise, reference.laser_mounts), None
 
 
 def replay_task(
@@ -125,6 +125,10 @@ def _spec_fields(spec: LocalizerSpec) -> dict[str, Any]:
     fields: dict[str, Any] = {} if spec.params is None else {"params": spec.params}
     if spec.odometry_noise:
         fields["odometry_noise"] = "declared by the bag: " + ", ".join(f"{p}={v:g}" for p, v in spec.odometry_noise.items())
+    if spec.mount_from_bag:
+        m = spec.mount
+        fields["laser_mount"] = (f"the bag's /tf_static: ({m.x:g} m, {m.y:g} m, {m.yaw:g} rad"
+                                 f"{', upside down' if m.upside_down else ''})")
     return {**fields, **_sweep_fields(spec)}
 
 

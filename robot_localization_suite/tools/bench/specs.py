@@ -33,7 +33,10 @@ class LocalizerSpec:
             e.g. a module-level function or ``functools.partial`` of one).
         uses_camera: fed ``/camera/image_raw`` instead of ``/scan``.
         camera_cue: fed ``/camera/image_raw`` besides ``/scan`` (the hybrid with a ``camera_topomap``).
-        mount: laser pose in the base frame (the adapter's mounting offset).
+        mount: laser pose in the base frame (the adapter's mounting offset): the parameters', or the bag's
+            ``/tf_static`` (:meth:`for_bag`, as a node reads it).
+        base_frame: the localizer's ``base_frame_id`` (where the bag's ``/tf_static`` is asked for the mount).
+        mount_from_bag: :attr:`mount` is the bag's ``/tf_static``, not the parameters' (reported).
         skip: bag-name glob -> reason, pairs ``--all`` leaves out.
         skip_global: the same, in global mode and global fixes only.
         params: the params file the settings were read from, if not the packaged one (reported).
@@ -49,6 +52,8 @@ class LocalizerSpec:
     uses_camera: bool = False
     camera_cue: bool = False
     mount: LaserMount = field(default_factory=LaserMount)
+    base_frame: str = "base_footprint"
+    mount_from_bag: bool = False
     skip: Mapping[str, str] = field(default_factory=dict)
     skip_global: Mapping[str, str] = field(default_factory=dict)
     params: str | None = None
@@ -66,22 +71,28 @@ class LocalizerSpec:
                     return str(reason) + (f" ({mode} mode)" if table is self.skip_global else "")
         return None
 
-    def for_bag(self, bag_name: str, odometry_noise: Mapping[str, float] | None = None) -> LocalizerSpec:
+    def for_bag(self, bag_name: str, odometry_noise: Mapping[str, float] | None = None,
+                laser_mounts: Mapping[str, LaserMount] | None = None) -> LocalizerSpec:
         """The spec to run on ``bag_name``: the first ``per_bag`` glob that matches, else this one; with the
         bag's declared ``odometry_noise`` (``alpha1``..``alpha4``) as the motion noise of a localizer that has
-        one, unless ``--set`` or ``--odometry-noise params`` said otherwise (docs/benchmark.md)."""
+        one, unless ``--set`` or ``--odometry-noise params`` said otherwise (docs/benchmark.md); and with the
+        laser mount the bag's ``/tf_static`` gives under its ``base_frame`` (``laser_mounts``: frame -> mount),
+        as a node takes it before its ``laser_x/y/yaw``."""
         chosen = next((spec for pattern, spec in self.per_bag.items() if fnmatch.fnmatch(bag_name, pattern)), self)
         source = chosen.source
-        if not odometry_noise or source is None or not source.declared_noise:
+        taken = {} if not odometry_noise or source is None or not source.declared_noise else {
+            param: float(odometry_noise[name])
+            for name, param in registry.plugin(source.name).odometry_noise_params.items()
+            if name in odometry_noise and param not in source.overrides}
+        if taken:
+            assert source is not None
+            rebuilt = _spec(dataclasses.replace(source, overrides={**taken, **source.overrides}))
+            chosen = dataclasses.replace(rebuilt, name=chosen.name, skip=chosen.skip, skip_global=chosen.skip_global,
+                                         params=chosen.params, sweep=chosen.sweep, odometry_noise=taken)
+        mount = (laser_mounts or {}).get(chosen.base_frame)
+        if mount is None or chosen.uses_camera or mount == chosen.mount:
             return chosen
-        taken = {param: float(odometry_noise[name])
-                 for name, param in registry.plugin(source.name).odometry_noise_params.items()
-                 if name in odometry_noise and param not in source.overrides}
-        if not taken:
-            return chosen
-        rebuilt = _spec(dataclasses.replace(source, overrides={**taken, **source.overrides}))
-        return dataclasses.replace(rebuilt, name=chosen.name, skip=chosen.skip, skip_global=chosen.skip_global,
-                                   params=chosen.params, sweep=chosen.sweep, odometry_noise=taken)
+        return dataclasses.replace(chosen, mount=mount, mount_from_bag=True)
 
 
 @dataclass(frozen=True)
@@ -109,6 +120,7 @@ def _spec(source: SettingsSource) -> LocalizerSpec:
         uses_camera=plugin.uses_camera,
         camera_cue=plugin.reads_camera_cue(settings),
         mount=node_settings.mount,
+        base_frame=node_settings.base_frame_id,
         skip=dict(plugin.bench_skip),
         skip_global=dict(plugin.bench_skip_global),
         source=source,
