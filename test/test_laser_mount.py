@@ -71,6 +71,11 @@ def test_rls_bench_takes_the_mount_from_the_bags_tf_static_upside_down_included(
         # the scans levelled at the mount explain the map at the truth; taken as a level laser they would not
         assert fields["map_coverage_median"] > 0.9, name  # 0.16 taken as a level laser (measured)
         assert fields["correct_rate"] >= 0.95 and fields["false_localized_rate"] == 0.0, (name, fields)
+    # single-scan fixes get the scans levelled too (IR answers each from its first scan's geometry)
+    assert bench.main([str(bag), "--global-fixes", "--every", "10", "--localizers", "ir_initializer",
+                       "--workers", "0", "--out", str(tmp_path / "fixes")]) == 0
+    fixes = json.loads((tmp_path / "fixes" / "summary.json").read_text())["office_upside_down"]["ir_initializer"]
+    assert fixes["global_correct_rate"] >= 0.9, fixes
     # the parameters' mount (laser_x/y/yaw, laser_upside_down) is used only where /tf_static has none
     spec = bench.registry_spec("mcl_baseline", {"laser_x": -1.0, "laser_upside_down": False})
     assert spec.for_bag(reference.name, laser_mounts=reference.laser_mounts).mount == mount

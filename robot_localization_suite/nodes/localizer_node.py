@@ -530,18 +530,12 @@ class LocalizerNode(LifecycleNode):
     def _on_tf(self, msg: Any) -> None:
         """Odometry from /tf (odom_source tf): ``odom -> base`` at the stamp of each transform on the way."""
         ns = self.node_settings
-        stored = self.tf_buffer.add_message(msg, static=False)
-        if not stored or not self._accepting("odometry", "odometry"):
-            return
-        on_the_way = self.tf_buffer.chain(ns.odom_frame_id, ns.base_frame_id)
-        if on_the_way is None:
+        odometry = self.tf_buffer.add_odometry(msg, ns.odom_frame_id, ns.base_frame_id)
+        if not odometry or not self._accepting("odometry", "odometry"):
             return
         assert self.adapter is not None
-        for transform in stored:
-            if transform.child in on_the_way:
-                pose = self.tf_buffer.lookup(ns.odom_frame_id, ns.base_frame_id, transform.stamp)
-                if pose is not None:
-                    self.adapter.on_odometry(transform.stamp, pose)
+        for stamp, pose in odometry:
+            self.adapter.on_odometry(stamp, pose)
         if not self._busy("inputs waiting for odometry"):
             self._odometry_arrived()
 

@@ -28,7 +28,7 @@ from ..core.errors import BagError
 if TYPE_CHECKING:
     from .bag_recovery import RecoveredBag, Recovery
 
-__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_custom_data", "bag_topics", "replay", "message_type_name",
+__all__ = ["BagMessage", "BagMessages", "BagWriter", "read_bag", "bag_custom_data", "bag_topics", "remapped_topic", "replay", "message_type_name",
            "message_class", "message_definition", "bag_bytes"]
 
 LOG = logging.getLogger(__name__)
@@ -203,25 +203,41 @@ def bag_custom_data(path: str | os.PathLike[str]) -> dict[str, str]:
     return {str(key): str(value) for key, value in custom.items()} if isinstance(custom, dict) else {}
 
 
-def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
-    """Topic name -> message type name of a bag (of what could be read, for a damaged one)."""
+def remapped_topic(topic: str, remap: Mapping[str, str] | None) -> str | None:
+    """The name a bag's ``topic`` goes by under ``remap`` (bag topic -> name, as ``ros2 bag play --remap``);
+    None when another topic is remapped onto its name (a node subscribed to that name would not hear it)."""
+    if not remap:
+        return topic
+    if topic in remap:
+        return remap[topic]
+    return None if topic in remap.values() else topic
+
+
+def bag_topics(path: str | os.PathLike[str], remap: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Topic name (under ``remap``) -> message type name of a bag (of what could be read, for a damaged one)."""
     reader, recovered = _open(Path(path))
     if recovered is not None:
-        return recovered.topics
-    assert reader is not None
-    try:
-        return {c.topic: c.msgtype for c in reader.connections}
-    finally:
-        reader.close()
+        found = recovered.topics
+    else:
+        assert reader is not None
+        try:
+            found = {c.topic: c.msgtype for c in reader.connections}
+        finally:
+            reader.close()
+    return {name: kind for topic, kind in found.items() if (name := remapped_topic(topic, remap)) is not None}
 
 
-def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
+def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None,
+                    remap: Mapping[str, str] | None) -> Iterator[BagMessage]:
     try:
-        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        names = {c.id: remapped_topic(c.topic, remap) for c in reader.connections}
+        connections = [c for c in reader.connections
+                       if names[c.id] is not None and (wanted is None or names[c.id] in wanted)]
         classes = {c.id: message_class(c.msgtype) for c in connections}
         try:
             for connection, stamp_ns, raw in reader.messages(connections=connections):
-                yield BagMessage(connection.topic, int(stamp_ns), deserialize_message(raw, classes[connection.id]))
+                yield BagMessage(str(names[connection.id]), int(stamp_ns),
+                                 deserialize_message(raw, classes[connection.id]))
         except (ReaderError, OSError, ValueError) as exc:
             raise BagError(f"bag {str(path)!r} is corrupt: {exc}") from exc
     finally:
@@ -229,18 +245,23 @@ def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None) -> Iter
             reader.close()
 
 
-def _recovered_messages(recovered: RecoveredBag, path: Path, wanted: set[str] | None) -> Iterator[BagMessage]:
+def _recovered_messages(recovered: RecoveredBag, path: Path, wanted: set[str] | None,
+                        remap: Mapping[str, str] | None) -> Iterator[BagMessage]:
     classes: dict[str, type] = {}
+    names = {topic: remapped_topic(topic, remap) for topic in recovered.topics}
+    sources = [topic for topic, name in names.items() if name is not None and (wanted is None or name in wanted)]
     try:
-        for topic, type_name, stamp_ns, raw in recovered.messages(wanted):
+        for topic, type_name, stamp_ns, raw in recovered.messages(sources):
             cls = classes.get(type_name) or classes.setdefault(type_name, message_class(type_name))
-            yield BagMessage(topic, stamp_ns, deserialize_message(raw, cls))
+            yield BagMessage(str(names[topic]), stamp_ns, deserialize_message(raw, cls))
     except OSError as exc:
         raise BagError(f"bag {str(path)!r} cannot be read: {exc}") from exc
 
 
-def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> BagMessages:
-    """Messages of a bag in log-time order, deserialised as rclpy messages.
+def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
+             remap: Mapping[str, str] | None = None) -> BagMessages:
+    """Messages of a bag in log-time order, deserialised as rclpy messages; with ``remap`` (bag topic ->
+    name) its topics go by those names (:func:`remapped_topic`), ``topics`` and the messages' included.
 
     A damaged bag (cut short, no footer, metadata.yaml missing or stale) yields every complete
     message before the damage; a warning and the result's ``recovery`` say how many and where
@@ -253,9 +274,9 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None) 
     wanted = set(topics) if topics is not None else None
     reader, recovered = _open(path)
     if recovered is not None:
-        return BagMessages(_recovered_messages(recovered, path, wanted), recovered.recovery)
+        return BagMessages(_recovered_messages(recovered, path, wanted, remap), recovered.recovery)
     assert reader is not None
-    return BagMessages(_sound_messages(reader, path, wanted), None, reader)
+    return BagMessages(_sound_messages(reader, path, wanted, remap), None, reader)
 
 
 def replay(
@@ -263,8 +284,10 @@ def replay(
     handlers: dict[str, Callable[[Any], Any]],
     *,
     on_message: Callable[[BagMessage], None] | None = None,
+    remap: Mapping[str, str] | None = None,
 ) -> int:
-    """Feed each message of the bag to ``handlers[topic]`` in bag order, one after another.
+    """Feed each message of the bag to ``handlers[topic]`` in bag order, one after another (topics under
+    ``remap``, as :func:`read_bag`).
 
     Every handler call returns before the next message is read, so the replay is
     deterministic and as fast as the handlers allow. ``on_message`` sees every
@@ -272,7 +295,7 @@ def replay(
     """
     handled = 0
     topics = None if on_message is not None else list(handlers)
-    for item in read_bag(path, topics):
+    for item in read_bag(path, topics, remap=remap):
         if on_message is not None:
             on_message(item)
         handler = handlers.get(item.topic)

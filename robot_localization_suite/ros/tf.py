@@ -154,6 +154,21 @@ class TransformBuffer:
                 stored.append(transform)
         return [t for t in stored if not static]
 
+    def add_odometry(self, msg: Any, odom_frame: str, base_frame: str) -> list[tuple[float, NDArray[np.float64]]]:
+        """Store a ``/tf`` message; the odometry it gives, as nav2 reads it: ``odom_frame -> base_frame`` at the
+        stamp of each transform stored on the chain between them, ``(stamp, pose)`` in their order."""
+        stored = self.add_message(msg, static=False)
+        on_the_way = self.chain(odom_frame, base_frame) if stored else None
+        if on_the_way is None:
+            return []
+        odometry = []
+        for transform in stored:
+            if transform.child in on_the_way:
+                pose = self.lookup(odom_frame, base_frame, transform.stamp)
+                if pose is not None:
+                    odometry.append((transform.stamp, pose))
+        return odometry
+
     def add(self, transform: PlanarTransform, *, static: bool) -> bool:
         """Store one transform; False when it is dropped (too old, or older than its frame's last)."""
         child = transform.child

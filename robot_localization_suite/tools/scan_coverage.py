@@ -7,6 +7,7 @@ only reads the bag. ``ScanCoverage.at`` gives each localizer output its scan's c
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,18 +49,19 @@ def bag_scan_coverage(
     scan_topic: str = "/scan",
     truth_topic: str = "/ground_truth",
     odom_topic: str = "/odom",
+    remap: Mapping[str, str] | None = None,
 ) -> ScanCoverage:
     """``metrics.map_coverage`` of every scan of ``bag`` on ``grid_map``, at the ground truth.
 
     The truth (robot base poses) is interpolated at each scan's stamp, never across a
     kidnapping (``metrics.detect_kidnappings`` with the bag's odometry), and the laser placed
-    by ``mount`` (its scans levelled). ``tolerance`` [m] defaults to two map cells.
+    by ``mount`` (its scans levelled). ``tolerance`` [m] defaults to two map cells; ``remap`` as ``read_bag``.
 
     Raises:
         BagError: the bag cannot be read, or has no scan or no ground truth.
     """
     scans, truth, odom = [], [], []
-    for item in read_bag(bag, [scan_topic, truth_topic, odom_topic]):
+    for item in read_bag(bag, [scan_topic, truth_topic, odom_topic], remap=remap):
         if item.topic == scan_topic:
             scans.append(conversions.scan_from_msg(item.msg))
         elif item.topic == truth_topic:

@@ -29,6 +29,7 @@ from ...core.errors import BagError, LocalizationSuiteError
 from .cv import cv_modes, find_split_indexes, run_cv
 from .cv_tables import append_cv_section, cv_tables
 from .executor import DaskExecutor, Executor, SequentialExecutor, dask_available
+from .reference import BENCH_TOPICS
 from .run import run_benchmark, run_global_fixes
 from .specs import registry_spec
 from .sweeps import parse_sweeps, sweep_specs
@@ -87,6 +88,22 @@ def _parse_skips(items: Sequence[str]) -> dict[str, dict[str, str]]:
     return skips
 
 
+def _parse_remaps(items: Sequence[str]) -> dict[str, str]:
+    """``FROM:=TO`` items (``ros2 bag play --remap``'s form; a missing leading slash is added) as bag topic -> name."""
+    remap: dict[str, str] = {}
+    for item in items:
+        source, sep, name = item.partition(":=")
+        source, name = (("/" + t.strip().lstrip("/")) if t.strip() else "" for t in (source, name))
+        if not sep or not source or not name:
+            raise ValueError(f"--remap expects FROM:=TO (e.g. /base_scan:=/scan), got {item!r}")
+        if name not in BENCH_TOPICS:
+            raise ValueError(f"--remap {item}: the benchmark reads no {name}; it reads {', '.join(BENCH_TOPICS)}")
+        if source in remap and remap[source] != name:
+            raise ValueError(f"--remap gives {source} two names: {remap[source]} and {name}")
+        remap[source] = name
+    return remap
+
+
 def _split_names(values: Sequence[str] | None) -> list[str]:
     return [n for v in values or () for n in v.split(",") if n]
 
@@ -136,6 +153,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, default=Path("results"), help="output directory (default: results)")
     parser.add_argument("--map", type=Path, default=None, help="map YAML for every bag (default: the bag's /map, "
                         "else config/maps/<bag or prefix>.yaml)")
+    parser.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
+                        help="read the bags' topic FROM as TO (as ros2 bag play --remap), e.g. /base_scan:=/scan; "
+                        f"TO is one of {', '.join(BENCH_TOPICS)}")
     parser.add_argument("--mode", choices=("global", "tracking"), default="global",
                         help="global (default): no prior; tracking: the first ground-truth pose on initialpose")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME.PARAM=VALUE",
@@ -215,6 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         overrides = _parse_overrides(args.overrides)
         params_files = _parse_params_files(args.params_files)
         skips = _parse_skips(args.skip)
+        remap = _parse_remaps(args.remap)
         compare = _read_comparison(args.compare_with) if args.compare_with else None
         if compare is not None and args.global_fixes:
             raise ValueError("--compare-with compares replays, not --global-fixes")
@@ -254,13 +275,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if bags and args.global_fixes:
             summary = run_global_fixes(bags, specs, args.out, every=args.every, map_yaml=args.map,
                                        isolate=not args.in_process, max_seconds=args.max_seconds,
-                                       honour_skips=args.all, child_progress=args.verbose, executor=executor)
+                                       honour_skips=args.all, child_progress=args.verbose, executor=executor,
+                                       remap=remap)
         elif bags:
             summary = run_benchmark(bags, specs, args.out, mode=args.mode, map_yaml=args.map,
                                     isolate=not args.in_process, max_seconds=args.max_seconds,
                                     plots=not args.no_plots, honour_skips=args.all, progress=True,
                                     child_progress=args.verbose, executor=executor, export_tum=args.export_tum,
-                                    record=args.record)
+                                    record=args.record, remap=remap)
             replays = summary
             if args.with_tracking and args.mode == "global":
                 print(summary_table(summary))
@@ -268,14 +290,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                                         isolate=not args.in_process, max_seconds=args.max_seconds,
                                         plots=not args.no_plots, honour_skips=args.all, progress=True,
                                         child_progress=args.verbose, executor=executor,
-                                        export_tum=args.export_tum, record=args.record)
+                                        export_tum=args.export_tum, record=args.record, remap=remap)
                 append_section(args.out, "tracking")
             if args.with_global_fixes:
                 print(summary_table(summary))
                 summary = run_global_fixes(bags, specs, args.out / "global_fixes", every=args.every,
                                            map_yaml=args.map, isolate=not args.in_process,
                                            max_seconds=args.max_seconds, honour_skips=args.all,
-                                           child_progress=args.verbose, executor=executor)
+                                           child_progress=args.verbose, executor=executor, remap=remap)
                 append_section(args.out, "global_fixes")
         cv_summary = None
         if cv_indexes:

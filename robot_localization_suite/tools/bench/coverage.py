@@ -56,7 +56,7 @@ class CoverageCache:
                 from ..scan_coverage import bag_scan_coverage  # reads bags: ROS modules load here
 
                 try:
-                    self._done[key] = bag_scan_coverage(reference.path, grid_map, mount=mount)
+                    self._done[key] = bag_scan_coverage(reference.path, grid_map, mount=mount, remap=reference.remap)
                 except LocalizationSuiteError as exc:
                     LOG.warning("bag %s: no map coverage: %s", reference.name, exc)
         return self._done[key]

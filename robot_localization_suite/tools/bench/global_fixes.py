@@ -73,7 +73,7 @@ def global_fix_localizer(
     if grid_map is None:
         record.error = "no map"
         return record
-    first_scan = prepare_scan(core, reference)
+    first_scan = prepare_scan(core, reference, spec.mount)
     start = time.perf_counter()
     adapter.set_map(grid_map)
     prepare_localizer(core, first_scan)
@@ -85,14 +85,14 @@ def global_fix_localizer(
     stamps: list[float] = []
     deadline = time.monotonic() + max_seconds if max_seconds else np.inf
     peak = rss_mb() if sample_rss else 0.0
-    for index, item in enumerate(read_bag(reference.path, [SCAN_TOPIC])):
+    for index, item in enumerate(read_bag(reference.path, [SCAN_TOPIC], remap=reference.remap)):
         if index % every:
             continue
         if time.monotonic() > deadline:
             record.truncated = True
             break
         try:
-            scan = conversions.scan_from_msg(item.msg)
+            scan = spec.mount.level(conversions.scan_from_msg(item.msg))  # as the adapter gives scans
         except LocalizationSuiteError:
             continue
         true_pose = (metrics.interpolate_poses(truth, [scan.stamp], breaks=reference.kidnap_indices)[0]

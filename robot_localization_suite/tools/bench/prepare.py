@@ -12,13 +12,15 @@ from ...core.errors import LocalizationSuiteError
 from .reference import SCAN_TOPIC, BagReference
 
 if TYPE_CHECKING:
-    from ...core.scan import Scan
+    from ...core.scan import LaserMount, Scan
 
 __all__ = ["prepare_scan", "prepare_localizer"]
 
 
-def prepare_scan(localizer: Any, reference: BagReference, *, uses_camera: bool = False) -> Scan | None:
-    """The bag's first scan that converts, if ``localizer`` has ``prepare``; else None (nothing to do).
+def prepare_scan(localizer: Any, reference: BagReference, mount: LaserMount, *,
+                 uses_camera: bool = False) -> Scan | None:
+    """The bag's first scan that converts (levelled at ``mount``, as the adapter gives scans), if ``localizer``
+    has ``prepare``; else None (nothing to do).
 
     Read before the ``map_setup_s`` timing starts: reading a bag is not precomputation.
     """
@@ -27,9 +29,9 @@ def prepare_scan(localizer: Any, reference: BagReference, *, uses_camera: bool =
 
     if uses_camera or not reference.has_scan or not callable(getattr(localizer, "prepare", None)):
         return None
-    for item in read_bag(reference.path, [SCAN_TOPIC]):
+    for item in read_bag(reference.path, [SCAN_TOPIC], remap=reference.remap):
         try:
-            return conversions.scan_from_msg(item.msg)
+            return mount.level(conversions.scan_from_msg(item.msg))
         except LocalizationSuiteError:
             continue
     return None

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,6 +37,9 @@ __all__ = [
     "TRUTH_TOPIC",
     "MAP_TOPIC",
     "REINITIALIZE_TOPIC",
+    "BENCH_TOPICS",
+    "TF_TOPIC",
+    "TF_STATIC_TOPIC",
     "BagReference",
     "load_reference",
     "map_candidates",
@@ -50,8 +54,12 @@ ODOM_TOPIC = "/odom"
 TRUTH_TOPIC = "/ground_truth"
 MAP_TOPIC = "/map"
 TF_STATIC_TOPIC = "/tf_static"
+TF_TOPIC = "/tf"  # odometry when the bag has no /odom (or odom_source tf)
 # A reinitialization request recorded by scan_sim (docs/simulator.md): the replay calls reinitialize().
 REINITIALIZE_TOPIC = "/" + _REINITIALIZE
+# Every topic the benchmark reads (what --remap may name).
+BENCH_TOPICS = (SCAN_TOPIC, ODOM_TOPIC, TRUTH_TOPIC, MAP_TOPIC, IMAGE_TOPIC, TF_TOPIC, TF_STATIC_TOPIC,
+                REINITIALIZE_TOPIC)
 
 
 @dataclass
@@ -72,6 +80,8 @@ class BagReference:
     odometry_noise: dict[str, float] | None = None  # alpha1..alpha4 the bag declares for its /odom, if it does
     # the laser's mount in each frame above the scans' on the bag's /tf_static (LocalizerSpec.for_bag takes it)
     laser_mounts: dict[str, LaserMount] = field(default_factory=dict)
+    # bag topic -> the name the benchmark reads it as (--remap; every read of the bag goes through it)
+    remap: dict[str, str] = field(default_factory=dict)
 
     @property
     def has_scan(self) -> bool:
@@ -111,13 +121,21 @@ def _trajectory(messages: list[BagMessage]) -> metrics.Trajectory | None:
     return metrics.Trajectory(np.array(stamps)[keep], poses_arr[keep])
 
 
-def load_reference(path: str | os.PathLike[str]) -> BagReference:
-    """Read a bag's ground truth, odometry and map, and find its kidnappings (of what is left of a damaged bag)."""
+def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None = None) -> BagReference:
+    """Read a bag's ground truth, odometry and map, and find its kidnappings (of what is left of a damaged bag).
+
+    ``remap``: bag topic -> the benchmark's name for it (``/base_scan`` -> ``/scan``, as ``ros2 bag play
+    --remap``); a remapped topic hides one of the bag's by that name (``ros.bag.remapped_topic``).
+    """
     from ...ros import conversions
-    from ...ros.bag import bag_custom_data, bag_topics, read_bag
+    from ...ros.bag import bag_custom_data, bag_topics, read_bag, remapped_topic
 
     path = Path(path)
-    topics = bag_topics(path)
+    remap = dict(remap or {})
+    topics = bag_topics(path, remap)
+    for source in remap:
+        if remapped_topic(source, remap) not in topics:
+            LOG.warning("bag %s: --remap %s:=%s: the bag has no %s", path.name, source, remap[source], source)
     odometry_noise = _declared_odometry_noise(path, bag_custom_data(path))
     truth_msgs, odom_msgs = [], []
     map_grid = None
@@ -125,10 +143,16 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
     map_changes: list[float] = []
     requests: list[float] = []
     static_tf = []
-    messages = read_bag(path, [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC, REINITIALIZE_TOPIC, TF_STATIC_TOPIC])
+    tf_msgs = []  # odometry when the bag has no /odom
+    wanted = [TRUTH_TOPIC, ODOM_TOPIC, MAP_TOPIC, REINITIALIZE_TOPIC, TF_STATIC_TOPIC]
+    if ODOM_TOPIC not in topics and TF_TOPIC in topics:
+        wanted.append(TF_TOPIC)
+    messages = read_bag(path, wanted, remap=remap)
     for item in messages:
         if item.topic == TF_STATIC_TOPIC:
             static_tf.append(item.msg)
+        elif item.topic == TF_TOPIC:
+            tf_msgs.append(item.msg)
         elif item.topic == TRUTH_TOPIC:
             truth_msgs.append(item)
         elif item.topic == ODOM_TOPIC:
@@ -145,10 +169,11 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         elif item.topic == REINITIALIZE_TOPIC:
             requests.append(item.stamp_ns * 1e-9)
     truth = _trajectory(truth_msgs)
-    odometry = _trajectory(odom_msgs)
+    odometry = _trajectory(odom_msgs) if odom_msgs else _tf_odometry(path, tf_msgs, static_tf)
     kidnaps = metrics.detect_kidnappings(truth, odometry) if truth is not None else np.zeros(0, dtype=np.int64)
     recovery = messages.recovery
     counts = recovery.topic_counts if recovery is not None else _topic_counts(path)
+    counts = {name: count for topic, count in counts.items() if (name := remapped_topic(topic, remap)) is not None}
     return BagReference(
         name=path.name,
         path=path,
@@ -162,11 +187,34 @@ def load_reference(path: str | os.PathLike[str]) -> BagReference:
         map_change_stamps=np.array(map_changes, dtype=np.float64),
         reinitialize_stamps=np.array(requests, dtype=np.float64),
         odometry_noise=odometry_noise,
-        laser_mounts=_laser_mounts(path, static_tf) if static_tf and SCAN_TOPIC in topics else {},
+        laser_mounts=_laser_mounts(path, static_tf, remap) if static_tf and SCAN_TOPIC in topics else {},
+        remap=remap,
     )
 
 
-def _laser_mounts(path: Path, static_tf: list[Any]) -> dict[str, LaserMount]:
+def _tf_odometry(path: Path, tf_msgs: list[Any], static_tf: list[Any]) -> metrics.Trajectory | None:
+    """The odometry of a bag without ``/odom``, for finding kidnappings: REP 105's ``odom`` to the first frame
+    ``/tf`` moves under it (each localizer's replay reads its own ``odom_frame_id -> base_frame_id``)."""
+    from ...ros.tf import TransformBuffer, frame_name
+
+    base = next((frame_name(t.child_frame_id) for msg in tf_msgs for t in msg.transforms
+                 if frame_name(t.header.frame_id) == "odom"), None)
+    if base is None:
+        return None
+
+    def log(level: str, key: str, text: str) -> None:
+        LOG.debug("bag %s: %s", path.name, text)
+
+    buffer = TransformBuffer(log)
+    for msg in static_tf:
+        buffer.add_message(msg, static=True)
+    samples = [sample for msg in tf_msgs for sample in buffer.add_odometry(msg, "odom", base)]
+    if not samples:
+        return None
+    return metrics.Trajectory(np.array([stamp for stamp, _ in samples]), np.array([pose for _, pose in samples]))
+
+
+def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) -> dict[str, LaserMount]:
     """The laser's mount in every frame above the first scan's on the bag's ``/tf_static`` messages."""
     from ...ros.bag import read_bag
     from ...ros.tf import TransformBuffer, frame_name
@@ -174,7 +222,7 @@ def _laser_mounts(path: Path, static_tf: list[Any]) -> dict[str, LaserMount]:
     def log(level: str, key: str, text: str) -> None:
         LOG.warning("bag %s: %s", path.name, text)
 
-    scans = read_bag(path, [SCAN_TOPIC])
+    scans = read_bag(path, [SCAN_TOPIC], remap=remap)
     try:
         laser = frame_name(next(scans).msg.header.frame_id)
     except StopIteration:

@@ -9,6 +9,7 @@ How a run is fed and timed: ``docs/benchmark.md``.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -27,7 +28,17 @@ from ...core.interval import angle_hull
 from ...core.localizer import Estimate, Idler, LocalizerStatus
 from .isolation import rss_mb
 from .prepare import prepare_localizer, prepare_scan
-from .reference import IMAGE_TOPIC, MAP_TOPIC, ODOM_TOPIC, REINITIALIZE_TOPIC, SCAN_TOPIC, TRUTH_TOPIC, BagReference
+from .reference import (
+    IMAGE_TOPIC,
+    MAP_TOPIC,
+    ODOM_TOPIC,
+    REINITIALIZE_TOPIC,
+    SCAN_TOPIC,
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+    TRUTH_TOPIC,
+    BagReference,
+)
 from .specs import LocalizerSpec
 
 if TYPE_CHECKING:
@@ -87,6 +98,7 @@ class RunRecord:
     map_setup_s: float | None
     peak_rss_mb: float | None
     truncated: bool = False
+    odometry_from: str | None = None  # where the odometry came from when not /odom ("/tf (odom -> base_link)")
     error: str | None = None
     update_errors: int = 0
     containment: list[bool] | None = None
@@ -223,7 +235,7 @@ def replay_localizer(
     log_time = [float("inf")]
     adapter = LocalizerAdapter(timed, node_name=spec.name, log=sink, mount=spec.mount, clock=lambda: log_time[0])
     if grid_map is not None and hasattr(timed, "set_map"):
-        first_scan = prepare_scan(timed, reference, uses_camera=spec.uses_camera)
+        first_scan = prepare_scan(timed, reference, spec.mount, uses_camera=spec.uses_camera)
         start = time.perf_counter()
         adapter.set_map(grid_map)
         prepare_localizer(timed, first_scan)
@@ -325,12 +337,27 @@ def replay_localizer(
 
     handlers: dict[str, Callable[[Any], Any]] = {ODOM_TOPIC: on_odom, sensor_topic: on_sensor, MAP_TOPIC: on_map,
                                                  REINITIALIZE_TOPIC: on_reinitialize}
+    # Odometry from /tf as a node with odom_source tf reads it: asked for, or the bag has no /odom.
+    if spec.odometry_from_tf or (ODOM_TOPIC not in reference.topics and TF_TOPIC in reference.topics):
+        from ...ros.adapter import ThrottledLog
+        from ...ros.tf import TransformBuffer
+
+        tf_buffer = TransformBuffer(ThrottledLog(sink))
+
+        def on_tf(msg: Any) -> None:
+            for stamp, pose in tf_buffer.add_odometry(msg, spec.odom_frame, spec.base_frame):
+                adapter.on_odometry(stamp, pose)
+
+        del handlers[ODOM_TOPIC]
+        handlers[TF_TOPIC] = on_tf
+        handlers[TF_STATIC_TOPIC] = functools.partial(tf_buffer.add_message, static=True)
+        record.odometry_from = f"/tf ({spec.odom_frame} -> {spec.base_frame})"
     if spec.camera_cue and not spec.uses_camera:
         handlers[IMAGE_TOPIC] = on_camera_cue
     run_bag = None if record_dir is None else _RunBag(Path(record_dir) / f"{reference.name}_{spec.name}_{mode}",
                                                          spec.name, truth, reference.kidnap_indices)
     try:
-        replay(reference.path, handlers, on_message=on_message)
+        replay(reference.path, handlers, on_message=on_message, remap=reference.remap)
     except _StopReplay:
         LOG.warning("%s stopped after %.0f s (--max-seconds)", prefix, max_seconds)
     finally:

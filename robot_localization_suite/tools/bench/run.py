@@ -13,7 +13,7 @@ import functools
 import logging
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -190,6 +190,7 @@ def run_benchmark(
     executor: Executor | None = None,
     export_tum: str | os.PathLike[str] | None = None,
     record: str | os.PathLike[str] | None = None,
+    remap: Mapping[str, str] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Replay every bag through every localizer; write ``summary.json``, ``summary.md`` and plots.
 
@@ -201,12 +202,13 @@ def run_benchmark(
     table and plots (``sweeps.py``). ``export_tum``: each run's estimates and the ground
     truth in TUM format there (``trajectories.py``). ``record``: each run as one MCAP that Foxglove opens,
     ``<record>/<bag>_<localizer>_<mode>/`` (``replay.py``; on a cluster, on the worker's file system).
+    ``remap``: bag topic -> the benchmark's name for it, in every bag (``load_reference``).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if executor is None:
         executor = SequentialExecutor(isolate, max_seconds, child_progress)
-    references = [load_reference(b) for b in bags]
+    references = [load_reference(b, remap) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
     maps: dict[str, tuple[GridMap | None, str]] = {}
     for reference in references:
@@ -277,16 +279,17 @@ def run_global_fixes(
     honour_skips: bool = False,
     child_progress: bool = False,
     executor: Executor | None = None,
+    remap: Mapping[str, str] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Single-scan global fixes of every localizer that offers ``global_fix``; write the summary.
 
-    ``executor``, ``child_progress``: as in :func:`run_benchmark`.
+    ``executor``, ``child_progress``, ``remap``: as in :func:`run_benchmark`.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if executor is None:
         executor = SequentialExecutor(isolate, max_seconds, child_progress)
-    references = [load_reference(b) for b in bags]
+    references = [load_reference(b, remap) for b in bags]
     summary: dict[str, dict[str, dict[str, Any]]] = {r.name: {} for r in references}
     planned: list[tuple[BagReference, LocalizerSpec, GridMap | None, str]] = []
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode="global_fixes"):

@@ -37,6 +37,9 @@ class LocalizerSpec:
             ``/tf_static`` (:meth:`for_bag`, as a node reads it).
         base_frame: the localizer's ``base_frame_id`` (where the bag's ``/tf_static`` is asked for the mount).
         mount_from_bag: :attr:`mount` is the bag's ``/tf_static``, not the parameters' (reported).
+        odom_frame: the localizer's ``odom_frame_id``.
+        odometry_from_tf: ``odom_source: tf``: the replay reads odometry from ``/tf`` (``odom_frame ->
+            base_frame``), as also for a bag without ``/odom``.
         skip: bag-name glob -> reason, pairs ``--all`` leaves out.
         skip_global: the same, in global mode and global fixes only.
         params: the params file the settings were read from, if not the packaged one (reported).
@@ -54,6 +57,8 @@ class LocalizerSpec:
     mount: LaserMount = field(default_factory=LaserMount)
     base_frame: str = "base_footprint"
     mount_from_bag: bool = False
+    odom_frame: str = "odom"
+    odometry_from_tf: bool = False
     skip: Mapping[str, str] = field(default_factory=dict)
     skip_global: Mapping[str, str] = field(default_factory=dict)
     params: str | None = None
@@ -121,6 +126,8 @@ def _spec(source: SettingsSource) -> LocalizerSpec:
         camera_cue=plugin.reads_camera_cue(settings),
         mount=node_settings.mount,
         base_frame=node_settings.base_frame_id,
+        odom_frame=node_settings.odom_frame_id,
+        odometry_from_tf=node_settings.odom_source == "tf",
         skip=dict(plugin.bench_skip),
         skip_global=dict(plugin.bench_skip_global),
         source=source,

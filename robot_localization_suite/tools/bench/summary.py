@@ -114,6 +114,8 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
         fields["update_errors"] = record.update_errors
     if record.truncated:
         fields["truncated"] = True
+    if record.odometry_from:
+        fields["odometry_from"] = record.odometry_from
     fields.update(_recovery_fields(reference))
     if truth is None:
         fields["note"] = "bag has no /ground_truth: timing only"

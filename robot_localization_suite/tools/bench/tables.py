@@ -110,6 +110,8 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
                 notes.append(f"odometry noise {fields['odometry_noise']}")
             if fields.get("laser_mount"):
                 notes.append(f"laser mount from {fields['laser_mount']}")
+            if fields.get("odometry_from"):
+                notes.append(f"odometry from {fields['odometry_from']}")
             if fields.get("truncated"):
                 notes.append("truncated by --max-seconds")
             if fields.get("recovered"):
