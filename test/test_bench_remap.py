@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from geometry_msgs.msg import PoseStamped
 
 from robot_localization_suite.registry import config_dir
 from robot_localization_suite.ros.bag import BagWriter, bag_topics, read_bag
@@ -19,14 +20,17 @@ RENAMED = {"/scan": "/base_scan", "/ground_truth": "/base_pose_ground_truth"}
 
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path]:
-    """The office tour's first 8 s; the same bag with its scans and truth under other names beside a /scan of
-    nothing but no-returns (which the remapped /base_scan must hide); and the same bag without /odom."""
+    """The office tour's first 8 s; the same bag with its scans and truth (a PoseStamped) under other names beside
+    a /scan of nothing but no-returns (which the remapped /base_scan must hide); and the same bag without /odom."""
     folder = tmp_path_factory.mktemp("remap")
     source = record_scenario(config_dir() / "scenarios" / "office_kidnap.yaml", folder / "office", 8.0)
     renamed, tf_only = folder / "office_renamed", folder / "office_tf_only"
     with BagWriter(renamed) as writer:
         for item in read_bag(source):
-            writer.write(RENAMED.get(item.topic, item.topic), item.msg, item.stamp_ns)
+            msg = item.msg
+            if item.topic == "/ground_truth":  # the truth as motion capture gives it
+                msg = PoseStamped(header=msg.header, pose=msg.pose.pose)
+            writer.write(RENAMED.get(item.topic, item.topic), msg, item.stamp_ns)
             if item.topic == "/scan":  # a second laser that sees nothing, on the name the benchmark reads
                 blind = item.msg
                 blind.ranges = [float("inf")] * len(blind.ranges)

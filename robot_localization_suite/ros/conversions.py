@@ -121,8 +121,10 @@ def pose_to_pose_msg(pose: NDArray[np.float64]) -> Pose:
 
 
 def odometry_from_msg(msg: Any) -> tuple[float, NDArray[np.float64]]:
-    """``nav_msgs/Odometry`` -> ``(stamp [s], pose (3,))``."""
-    return stamp_to_seconds(msg.header.stamp), pose_from_pose_msg(msg.pose.pose)
+    """``nav_msgs/Odometry`` -> ``(stamp [s], pose (3,))``; also ``geometry_msgs/PoseWithCovarianceStamped`` and
+    ``PoseStamped`` (a ground truth from motion capture or from another localizer)."""
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    return stamp_to_seconds(msg.header.stamp), pose_from_pose_msg(pose)
 
 
 def odometry_to_msg(
