@@ -287,6 +287,20 @@ def test_a_scan_whose_angle_max_disagrees_with_its_increment_is_skipped_naming_t
     assert adapter.on_scan_msg(off_by_one) is not None
 
 
+def test_a_clockwise_scan_reaches_the_method_with_its_angles_increasing() -> None:
+    """A driver sweeping clockwise publishes a negative angle_increment: the same readings, beams reordered."""
+    adapter, core, _ = make_adapter()
+    clockwise = conversions.scan_to_msg(1.0, "laser", angle_min=0.2, angle_increment=-0.1,
+                                        ranges=np.array([1.0, 2.0, 3.0, 4.0, 5.0]), range_min=0.1, range_max=10.0)
+    assert adapter.on_scan_msg(clockwise) is not None
+    scan = core.scans[-1]
+    np.testing.assert_allclose(scan.angles, [-0.2, -0.1, 0.0, 0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(scan.ranges, [5.0, 4.0, 3.0, 2.0, 1.0])
+    counter = scan_msg(2.0, [5.0, 4.0, 3.0, 2.0, 1.0])  # the same sweep published counter-clockwise
+    assert adapter.on_scan_msg(counter) is not None
+    np.testing.assert_allclose(core.scans[-1].hit_endpoints([0.0, 0.0, 0.3]), scan.hit_endpoints([0.0, 0.0, 0.3]))
+
+
 def test_a_map_the_method_refuses_is_logged_and_the_next_map_is_taken_even_if_it_is_the_previous_one() -> None:
     """MCL refused a map without a free cell after taking it in part; the right map sent again was 'unchanged'."""
 

@@ -89,13 +89,16 @@ class Scan:
         range_min: float,
         range_max: float,
     ) -> Scan:
-        """Build from the fields of a ``sensor_msgs/LaserScan``."""
+        """Build from the fields of a ``sensor_msgs/LaserScan``; a clockwise sweep (negative ``angle_increment``)
+        is given with its beams reordered so that the angles increase, as every other scanner's."""
         ranges_arr = np.asarray(ranges, dtype=np.float64).reshape(-1)
         if ranges_arr.size == 0:
             raise ScanError("scan has no readings")
         if not np.isfinite(angle_min) or not np.isfinite(angle_increment) or angle_increment == 0.0:
             raise ScanError(f"scan angle_min {angle_min!r} / angle_increment {angle_increment!r} unusable")
         angles = angle_min + angle_increment * np.arange(ranges_arr.size, dtype=np.float64)
+        if angle_increment < 0.0:
+            return cls(float(stamp), angles[::-1].copy(), ranges_arr[::-1].copy(), float(range_min), float(range_max))
         return cls(float(stamp), angles, ranges_arr, float(range_min), float(range_max))
 
     # -- classification -----------------------------------------------------------
