@@ -182,9 +182,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     node_settings, settings = plugin("ir_initializer").load_settings(_parse_overrides(options.set))
     if not isinstance(settings, IRSettings):
         raise TypeError(f"the ir_initializer plugin gave {type(settings).__name__} settings, not IRSettings")
-    mount = node_settings.mount
+    from .bench.reference import load_reference
+
     results = {}
     for bag in options.bags:
+        # the laser mount as a node and the benchmark take it: the bag's /tf_static, else the parameters
+        mount = load_reference(bag).laser_mounts.get(node_settings.base_frame_id, node_settings.mount)
         scans, truths, bag_map = load_bag_scans(bag)
         map_path = options.map or config_dir() / "maps" / f"{bag.name}.yaml"
         grid_map = load_map_yaml(map_path) if map_path.is_file() else bag_map
