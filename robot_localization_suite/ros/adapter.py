@@ -42,7 +42,7 @@ from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
 from ..core.grid_map import MAX_COORDINATE_M
 from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus, Preparer
-from ..core.scan import LaserMount
+from ..core.scan import LaserMount, Scan
 from ..core.se2 import compose, inverse, relative
 from . import conversions
 from .tf import map_to_odom
@@ -447,7 +447,7 @@ class LocalizerAdapter:
             self.log("warn", "no_map", "scan received before any map: waiting for /map or map_yaml")
             return None
         try:
-            scan = self.mount.level(conversions.scan_from_msg(msg))
+            scan = self.scan_from_msg(msg)
         except ScanError as exc:
             self.log("warn", "bad_scan", f"skipping scan: {exc}")
             return None
@@ -485,8 +485,16 @@ class LocalizerAdapter:
         """
         key = self._preparation_key(msg)
         if isinstance(self.localizer, Preparer):
-            self.localizer.prepare(self.mount.level(conversions.scan_from_msg(msg)))
+            self.localizer.prepare(self.scan_from_msg(msg))
         self._prepared_key = key
+
+    def scan_from_msg(self, msg: Any) -> Scan:
+        """A ``LaserScan`` as the methods get it: converted, and levelled at the mount (``LaserMount.level``).
+
+        Raises:
+            ScanError: the scan cannot be read.
+        """
+        return self.mount.level(conversions.scan_from_msg(msg))
 
     def _preparation_key(self, msg: Any) -> tuple[Any, ...]:
         return (id(self._current_map), len(msg.ranges), float(msg.angle_min), float(msg.angle_increment),

@@ -195,16 +195,11 @@ class TransformBuffer:
 
     def chain(self, parent: str, child: str) -> list[str] | None:
         """The frames from ``child`` up to ``parent`` (both included), or None when not connected."""
-        frames = [child]
-        while frames[-1] != parent:
-            up = self._parent.get(frames[-1])
-            if up is None or up in frames:
-                return None
-            frames.append(up)
-        return frames
+        frames = [child, *self.above(child)]
+        return frames[: frames.index(parent) + 1] if parent in frames else None
 
     def above(self, frame: str) -> list[str]:
-        """The frames above ``frame``, its parent first."""
+        """The frames above ``frame``, its parent first (up to the root, or to a loop)."""
         frames = [frame]
         while (up := self._parent.get(frames[-1])) is not None and up not in frames:
             frames.append(up)

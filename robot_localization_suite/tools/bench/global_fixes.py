@@ -57,7 +57,6 @@ def global_fix_localizer(
     sample_rss: bool = True,
 ) -> GlobalFixRecord:
     """Ask ``global_fix(scan)`` for every ``every``-th scan alone and compare with the truth."""
-    from ...ros import conversions
     from ...ros.adapter import LocalizerAdapter
     from ...ros.bag import read_bag
 
@@ -92,7 +91,7 @@ def global_fix_localizer(
             record.truncated = True
             break
         try:
-            scan = spec.mount.level(conversions.scan_from_msg(item.msg))  # as the adapter gives scans
+            scan = adapter.scan_from_msg(item.msg)
         except LocalizationSuiteError:
             continue
         true_pose = (metrics.interpolate_poses(truth, [scan.stamp], breaks=reference.kidnap_indices)[0]

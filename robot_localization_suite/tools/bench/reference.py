@@ -192,22 +192,29 @@ def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None
     )
 
 
+def _static_tf(path: Path, static_tf: list[Any]) -> Any:
+    """A ``ros.tf.TransformBuffer`` holding the bag's ``/tf_static`` messages (what it refuses is logged)."""
+    from ...ros.tf import TransformBuffer
+
+    def log(level: str, key: str, text: str) -> None:
+        LOG.warning("bag %s: %s", path.name, text)
+
+    buffer = TransformBuffer(log)
+    for msg in static_tf:
+        buffer.add_message(msg, static=True)
+    return buffer
+
+
 def _tf_odometry(path: Path, tf_msgs: list[Any], static_tf: list[Any]) -> metrics.Trajectory | None:
     """The odometry of a bag without ``/odom``, for finding kidnappings: REP 105's ``odom`` to the first frame
     ``/tf`` moves under it (each localizer's replay reads its own ``odom_frame_id -> base_frame_id``)."""
-    from ...ros.tf import TransformBuffer, frame_name
+    from ...ros.tf import frame_name
 
     base = next((frame_name(t.child_frame_id) for msg in tf_msgs for t in msg.transforms
                  if frame_name(t.header.frame_id) == "odom"), None)
     if base is None:
         return None
-
-    def log(level: str, key: str, text: str) -> None:
-        LOG.debug("bag %s: %s", path.name, text)
-
-    buffer = TransformBuffer(log)
-    for msg in static_tf:
-        buffer.add_message(msg, static=True)
+    buffer = _static_tf(path, static_tf)
     samples = [sample for msg in tf_msgs for sample in buffer.add_odometry(msg, "odom", base)]
     if not samples:
         return None
@@ -217,10 +224,7 @@ def _tf_odometry(path: Path, tf_msgs: list[Any], static_tf: list[Any]) -> metric
 def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) -> dict[str, LaserMount]:
     """The laser's mount in every frame above the first scan's on the bag's ``/tf_static`` messages."""
     from ...ros.bag import read_bag
-    from ...ros.tf import TransformBuffer, frame_name
-
-    def log(level: str, key: str, text: str) -> None:
-        LOG.warning("bag %s: %s", path.name, text)
+    from ...ros.tf import frame_name
 
     scans = read_bag(path, [SCAN_TOPIC], remap=remap)
     try:
@@ -229,9 +233,7 @@ def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) ->
         return {}
     finally:
         scans.close()
-    buffer = TransformBuffer(log)
-    for msg in static_tf:
-        buffer.add_message(msg, static=True)
+    buffer = _static_tf(path, static_tf)
     mounts = {}
     for frame in buffer.above(laser):
         found = buffer.lookup_mount(frame, laser, static_only=True)
