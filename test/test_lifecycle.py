@@ -8,6 +8,7 @@ answer lost, answered as a lifecycle node answers, or refused. The manager must 
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -99,14 +100,16 @@ class MuteNode:
         rclpy.try_shutdown(context=self.context)
 
 
-def configure(script: list[str], domain_id: int, timeout_s: float = 8.0) -> tuple[bool, float, list[str], int]:
+def configure(script: list[str], domain_id: int, timeout_s: float = 8.0,
+              cancel_after_s: float = math.inf) -> tuple[bool, float, list[str], int]:
     """(success, seconds waited, the manager's lines, requests the node received) of one configure."""
     mute = MuteNode(script)
     lines: list[str] = []
     manager = LifecycleManager(["mute"], domain_id=domain_id, log=lines.append, state_check_s=0.5)
     try:
         started = time.monotonic()
-        ok = manager.change_state("mute", "configure", timeout_s)
+        ok = manager.change_state("mute", "configure", timeout_s,
+                                  cancelled=lambda: time.monotonic() - started > cancel_after_s)
         waited = time.monotonic() - started
     finally:
         mute.close()
@@ -147,3 +150,11 @@ def test_a_node_that_never_takes_the_request_is_not_made_up_a_success(ros_domain
     assert not ok and any("did not answer within 8 s" in line for line in lines), lines
     # asked again at intervals doubling from the check interval (0.5 s): not once per check
     assert 2 <= requests <= 5, (requests, lines)
+
+
+def test_a_run_that_stops_while_waiting_says_so_not_that_the_node_timed_out(ros_domain_id: int) -> None:
+    # rls_run cancels the wait when another node exits; the line must not blame this node's timeout
+    ok, waited, lines, _ = configure(["lost"], ros_domain_id, timeout_s=60.0, cancel_after_s=1.0)
+    assert not ok and waited < 10.0, lines
+    assert any("the run is stopping" in line for line in lines), lines
+    assert not any("did not answer" in line for line in lines), lines

@@ -78,7 +78,10 @@ class LifecycleManager:
         client = self._clients[name]
         deadline = time.monotonic() + timeout_s
         while not client.wait_for_service(timeout_sec=0.2):
-            if cancelled() or time.monotonic() > deadline:
+            if cancelled():
+                self.log(f"{name}: stopped waiting for /{name}/change_state: the run is stopping")
+                return False
+            if time.monotonic() > deadline:
                 self.log(f"{name}: no lifecycle service /{name}/change_state within {timeout_s:g} s")
                 return False
         request = self._request_type(transition=Transition(id=TRANSITIONS[transition], label=transition))
@@ -114,7 +117,10 @@ class LifecycleManager:
         last_sent, resend_after = started, self.state_check_s
         while not any(future.done() for future in sent):
             now = time.monotonic()
-            if cancelled() or now > deadline:
+            if cancelled():
+                self.log(f"{name}: stopped waiting for {transition} after {now - started:.1f} s: the run is stopping")
+                return False
+            if now > deadline:
                 self.log(f"{name}: {transition} did not answer within {timeout_s:g} s "
                          f"(asked {len(sent)} time{'s' if len(sent) > 1 else ''})")
                 return False
