@@ -26,6 +26,7 @@ __all__ = [
     "CameraLocalizer",
     "GlobalFixer",
     "Preparer",
+    "prepared_for",
     "Idler",
 ]
 
@@ -145,6 +146,15 @@ class Preparer(Protocol):
 
     def prepare(self, scan: Scan) -> None:
         """Precompute what the first scan of this geometry would (after ``set_map``)."""
+
+
+def prepared_for(localizer: Preparer, scan: Scan) -> bool:
+    """Whether ``localizer.prepare(scan)`` would have nothing to do, as its optional ``prepared_for(scan)``
+    says: what is precomputed serves this scan's geometry (a scanner whose beam count or ``angle_min``
+    varies a little from scan to scan needs nothing new). False for a method without it: any other
+    layout is prepared for."""
+    check = getattr(localizer, "prepared_for", None)
+    return bool(check(scan)) if callable(check) else False
 
 
 @runtime_checkable

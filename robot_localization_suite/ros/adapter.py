@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from ..core.errors import LocalizationSuiteError, MapError, ScanError
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
 from ..core.grid_map import MAX_COORDINATE_M
-from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus, Preparer
+from ..core.localizer import CameraLocalizer, Estimate, Localizer, LocalizerStatus, Preparer, prepared_for
 from ..core.scan import LaserMount, Scan
 from ..core.se2 import compose, inverse, relative
 from . import conversions
@@ -258,6 +258,7 @@ class LocalizerAdapter:
         # The sensor side, told apart once by the runtime-checkable protocols: scans go to the one, images to the other.
         self._laser: Localizer | None = localizer if isinstance(localizer, Localizer) else None
         self._prepared_key: tuple[Any, ...] | None = None  # the scanner and map prepare() last ran for
+        self._keys_prepared_before: set[tuple[Any, ...]] = set()  # earlier scanner layouts on this map
         self._camera: CameraLocalizer | None = localizer if isinstance(localizer, CameraLocalizer) else None
         self.max_candidates = max_candidates
         self.node_name = node_name
@@ -466,16 +467,31 @@ class LocalizerAdapter:
         return self._run(lambda: laser.on_scan(scan))
 
     def preparation_due(self, msg: Any) -> bool:
-        """Whether the localizer would precompute for this scan's scanner (``Preparer``) and has not yet."""
+        """Whether the localizer would precompute for this scan's scanner (``Preparer``) and has not yet.
+
+        A scan laid out as the last prepared one is not; one laid out otherwise is asked of the method
+        (``prepared_for``): a beam more or less, or an ``angle_min`` a hair off, usually need nothing new.
+        """
         if not (self.has_map and isinstance(self.localizer, Preparer)):
             return False
-        if self._preparation_key(msg) == self._prepared_key:
+        key = self._preparation_key(msg)
+        if key == self._prepared_key:
             return False
         try:
-            scan = conversions.scan_from_msg(msg)
+            scan = self.scan_from_msg(msg)
         except ScanError:
             return False  # on_scan_msg says why, throttled
-        return bool(scan.hit_mask.any())  # a scan with no hit is skipped, not prepared for
+        if not scan.hit_mask.any():
+            return False  # a scan with no hit is skipped, not prepared for
+        if self._prepared_key is not None and key[0] == self._prepared_key[0] and prepared_for(self.localizer, scan):
+            self._prepared_key = key
+            return False
+        if key in self._keys_prepared_before:
+            self.log("warn", "scanner_alternates",
+                     f"precomputing again for a scanner layout prepared before ({key[1]} beams from "
+                     f"{key[2]:.4f} rad by {key[3]:.6f} rad): are two scanners publishing on one topic? "
+                     "Each change drops the scan that brings it")
+        return True
 
     def prepare(self, msg: Any) -> None:
         """Run the localizer's precomputation for this scan's scanner (in a worker thread, by the node).
@@ -486,6 +502,12 @@ class LocalizerAdapter:
         key = self._preparation_key(msg)
         if isinstance(self.localizer, Preparer):
             self.localizer.prepare(self.scan_from_msg(msg))
+        if self._prepared_key is not None and self._prepared_key[0] == key[0]:
+            if len(self._keys_prepared_before) >= 16:
+                self._keys_prepared_before.clear()
+            self._keys_prepared_before.add(self._prepared_key)
+        else:
+            self._keys_prepared_before.clear()  # another map: what was prepared before is gone
         self._prepared_key = key
 
     def scan_from_msg(self, msg: Any) -> Scan:

@@ -87,6 +87,7 @@ class HybridLocalizer:
         s = self.settings
         self.mcl = MonteCarloLocalizer(s.mcl)
         self._methods: list[Any] = []  # the global fixers that need the map (and prepare)
+        self._unprepared: set[int] = set()  # ids of the methods whose last prepare() raised
         if sources is None:
             sources = []
             if s.pil_every_updates > 0:
@@ -132,6 +133,7 @@ class HybridLocalizer:
         self.mcl.set_map(grid_map)
         for method in self._methods:
             method.set_map(grid_map)
+        self._unprepared.clear()
         if self.monitor is not None:
             self.monitor.set_map(grid_map)
         self.runner.forget()
@@ -144,6 +146,7 @@ class HybridLocalizer:
     def prepare(self, scan: Scan) -> None:
         """Precompute PIL's learning and IR's index for this scanner now (a failure is logged: that source is
         then skipped at its queries)."""
+        self._unprepared.clear()
         for method in self._methods:
             try:
                 method.prepare(scan)
@@ -151,6 +154,12 @@ class HybridLocalizer:
                     method.global_fix(scan)  # its compiled kernels load now, not in the first update
             except Exception as exc:  # noqa: BLE001 - the tracking must not depend on a proposal source
                 _LOG.warning("hybrid: preparing %s failed: %s: %s", type(method).__name__, type(exc).__name__, exc)
+                self._unprepared.add(id(method))
+
+    def prepared_for(self, scan: Scan) -> bool:
+        """Whether every source is prepared for this scan's scanner; one whose preparation failed counts as
+        done (it is skipped at its queries, and trying again at every scan would stop the tracking)."""
+        return all(id(method) in self._unprepared or method.prepared_for(scan) for method in self._methods)
 
     def on_odometry(self, stamp: float, odom_pose: NDArray[np.float64]) -> None:
         """Odometry for the filter (and to move proposals from their scan's stamp to the update's)."""

@@ -123,7 +123,7 @@ class IRGlobalFixer:
         if self.grid_map is None:
             raise ScanError("IR needs a map before it can prepare its index")
         fan = self.settings.fan_model(float(scan.angles[1] - scan.angles[0]), scan.range_max)
-        if self.index is None or self.index.fan != fan:
+        if self.index is None or not self.index.fan.serves(fan):
             if self.index is not None:
                 _LOG.warning(
                     "IR index was built for a %d-ray fan to %.2f m, the scans need %d rays to %.2f m: building "
@@ -133,6 +133,18 @@ class IRGlobalFixer:
             self._build_index(fan)
         assert self.index is not None
         return self.index
+
+    def prepared_for(self, scan: Scan) -> bool:
+        """Whether the index serves this scan's scanner (its fan: the angular step and range, not the beam count)."""
+        if self.grid_map is None or self.index is None:
+            return False
+        if scan.beam_count < 2:
+            return True  # prepare would refuse it, as on_scan does
+        try:
+            return self.index.fan.serves(
+                self.settings.fan_model(float(scan.angles[1] - scan.angles[0]), scan.range_max))
+        except ScanError:
+            return True
 
     def refined_scores(self, scan: Scan, poses: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """Scores of ``poses`` after refinement, as the ranking scores its poses (``rank_score``)."""

@@ -123,6 +123,14 @@ class FanModel:
         """Angle between neighbouring rays [rad]."""
         return 2.0 * math.pi / self.rays
 
+    def serves(self, needed: FanModel) -> bool:
+        """Whether an index of this fan serves scans that would ask for ``needed``: the same ranges, and rays
+        within 2 % as many (a scan is resampled onto the fan's rays by nearest beam, so a beam more or less,
+        as an RPLIDAR's count varies from scan to scan, changes no reading by more than half a beam)."""
+        return (self.range_resolution == needed.range_resolution
+                and abs(self.max_range - needed.max_range) <= 1e-6
+                and abs(self.rays - needed.rays) <= max(1, int(0.02 * self.rays)))
+
     def angles(self) -> NDArray[np.float64]:
         """Ray angles ``(M,)`` [rad] relative to the map x axis, ray 0 along +x."""
         return np.arange(self.rays, dtype=np.float64) * self.ray_step

@@ -141,6 +141,10 @@ class IRLocalizer:
         """Build (or load) the index for this scan's geometry now, not inside the first update."""
         self.fixer.prepare(scan)
 
+    def prepared_for(self, scan: Scan) -> bool:
+        """Whether the index serves this scan's scanner (``IRGlobalFixer.prepared_for``)."""
+        return self.fixer.prepared_for(scan)
+
     @property
     def index(self) -> IRIndex | None:
         return self.fixer.index

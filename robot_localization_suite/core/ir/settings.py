@@ -204,7 +204,9 @@ class IRSettings(Settings):
         increment = abs(increment)
         if not (math.isfinite(increment) and increment > 0.0):
             raise ScanError(f"scan angle increment {increment!r} is unusable for the IR precomputation")
-        stride = max(1, int(math.ceil(self.angular_resolution / increment - 1e-6)))
+        # a scanner 2 % finer than the resolution is a scanner at it (361 beams over 360 deg take every beam,
+        # not every other one, as 359 or 360 do): the stride does not jump for a beam more or less
+        stride = max(1, int(math.ceil(self.angular_resolution / increment - 0.02)))
         rays = max(8, int(round(2.0 * math.pi / (stride * increment))))
         cap = MAX_HIT_CODE * self.range_resolution
         limit = self.max_range if self.max_range > 0.0 else range_max

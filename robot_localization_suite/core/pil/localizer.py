@@ -315,10 +315,29 @@ class PilLocalizer:
         # The level functions for a scan centred on the laser's x axis; another centre recomputes them.
         self._ensure_sheets(-0.5 * (self._layout.sensor_count - 1) * self._layout.sensor_spacing)
 
-    def _prepare(self, scan: Scan) -> dict[str, Any]:
-        """Check the scan against the learning; relearn (with a warning) when its geometry differs."""
+    def prepared_for(self, scan: Scan) -> bool:
+        """Whether this scan's geometry needs no learning and no level functions beyond what PIL holds.
+
+        A beam more or less, or an ``angle_min`` a hair off, are the same scanner (an RPLIDAR's beam
+        count varies from scan to scan): only what :meth:`prepare` would recompute counts.
+        """
         if self.grid_map is None or self.learning is None:
-            raise MapError("PIL has no map yet: call set_map first")
+            return False
+        try:
+            reasons, _, _ = self._geometry_change(scan)
+        except ScanError:
+            return True  # on_scan says why; there is nothing to prepare for it
+        if reasons:
+            return False
+        mapping = self._mapping
+        if mapping is None or not mapping.matches(scan):
+            mapping = BeamMapping(self._layout, scan, self.settings.beam_mapping)
+        return self._sheet_features is not None and self._sheets_key == self._sheets_key_for(
+            float(mapping.sensor_angles[0]))
+
+    def _geometry_change(self, scan: Scan) -> tuple[list[str], float, float]:
+        """Why this scan's field of view or range needs another layout (none: it fits), and that layout's
+        field of view [rad] and range [m]."""
         if scan.beam_count < 2:
             raise ScanError(f"PIL needs a scan of at least 2 beams, got {scan.beam_count}")
         increment = abs(float(scan.angles[1] - scan.angles[0]))
@@ -326,7 +345,6 @@ class PilLocalizer:
             raise ScanError(f"scan angle increment {increment!r} is unusable")
         fov = scan.field_of_view
         scan_full = fov >= 2.0 * math.pi - 0.5 * increment
-        notes: dict[str, Any] = {}
         reasons = []
         new_fov = self._layout.field_of_view
         if scan_full != self._layout.full_circle or (
@@ -340,6 +358,14 @@ class PilLocalizer:
         new_range = min(self.settings.max_range, scan.range_max)
         if new_range < self._range - 1e-3 or (self._range < self.settings.max_range and new_range > self._range + 1e-3):
             reasons.append(f"the scan's range_max is {scan.range_max:.2f} m but PIL learned R = {self._range:.2f} m")
+        return reasons, new_fov, new_range
+
+    def _prepare(self, scan: Scan) -> dict[str, Any]:
+        """Check the scan against the learning; relearn (with a warning) when its geometry differs."""
+        if self.grid_map is None or self.learning is None:
+            raise MapError("PIL has no map yet: call set_map first")
+        reasons, new_fov, new_range = self._geometry_change(scan)
+        notes: dict[str, Any] = {}
         if reasons:
             layout = replace(self._layout, field_of_view=new_fov)
             if layout.angle_count == self.learning.angle_count and abs(new_range - self._range) <= 1e-3:
@@ -365,13 +391,20 @@ class PilLocalizer:
         """Level functions of every tile on every heading sheet (recomputed when the sensor offset changes)."""
         assert self.learning is not None
         sectors = sheet_sectors(self._layout, first_sensor_angle, self.settings.reference_headings)
-        key = tuple(int(start) for start in sectors[:, 0])  # the learned directions each sheet starts at
+        key = self._sheets_key_for(first_sensor_angle, sectors)
         if self._sheets_key == key and self._sheet_features is not None:
             return
         self._sheet_features = None
         self._sheet_features = self._level_bytes(sectors)
         self._level_index = LevelIndex(self._sheet_features, self.learning.tile_lines, self.learning.tile_columns)
         self._sheets_key = key
+
+    def _sheets_key_for(self, first_sensor_angle: float,
+                        sectors: NDArray[np.int64] | None = None) -> tuple[int, ...]:
+        """The learned directions each heading sheet starts at, for a scan whose first sensor is at this angle."""
+        if sectors is None:
+            sectors = sheet_sectors(self._layout, first_sensor_angle, self.settings.reference_headings)
+        return tuple(int(start) for start in sectors[:, 0])
 
     def _level_bytes(self, sectors: NDArray[np.int64]) -> NDArray[np.uint8]:
         """Level functions ``(T, S, F)`` of every tile and sheet as bytes, computed in pieces."""
