@@ -691,6 +691,26 @@ def test_clusters_separate_distant_groups_and_join_across_plus_minus_pi() -> Non
     assert abs(abs(mean[2]) - math.pi) < 0.05 and covariance[2, 2] < 0.01
 
 
+def test_a_cloud_spread_over_kilometres_clusters_as_a_dense_histogram_would(monkeypatch: pytest.MonkeyPatch) -> None:
+    # an odometry jump of a kilometre or an initial covariance of std 1 km made a dense histogram of gigabytes
+    from robot_localization_suite.core.filter import particles
+
+    rng = np.random.default_rng(5)
+    for trial in range(40):
+        centres = rng.uniform(-3.0, 3.0, size=(int(rng.integers(1, 5)), 3))
+        n = int(rng.integers(2, 300))
+        poses = centres[rng.integers(0, len(centres), n)] + rng.normal(0.0, rng.uniform(0.05, 1.0), (n, 3))
+        poses[:, 2] = np.where(rng.random(n) < 0.2, rng.choice([-3.13, 3.13], n), poses[:, 2])
+        dense = cluster_particles(poses)
+        monkeypatch.setattr(particles, "_DENSE_CELLS_MAX", 0)
+        sparse = cluster_particles(poses)
+        monkeypatch.undo()
+        assert dense[1] == sparse[1] and np.array_equal(dense[0], sparse[0]), trial
+    far_apart = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.05], [5000.0, -3000.0, 3.13], [5000.2, -3000.1, -3.13]])
+    labels, count = cluster_particles(far_apart)  # a dense histogram: 10,000 x 6,000 x 36 bins
+    assert count == 2 and labels[0] == labels[1] != labels[2] == labels[3]
+
+
 @pytest.mark.parametrize("max_rivals", [0, 8])
 def test_a_rival_cluster_rules_out_localized(office: GridMap, run: Drive, max_rivals: int) -> None:
     """LOCALIZED means the filter stands behind one pose: a second cluster holding ``ambiguous_cluster_weight``

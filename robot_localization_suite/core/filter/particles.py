@@ -45,6 +45,10 @@ __all__ = [
 KLD_BIN_XY = 0.5
 KLD_BIN_THETA = math.radians(10.0)
 _THETA_BINS = int(round(2.0 * math.pi / KLD_BIN_THETA))  # 36
+# Histograms of more cells than this are clustered over their occupied bins only (16 MB of labels at most).
+_DENSE_CELLS_MAX = 4_000_000
+_NEIGHBOURS = np.array([(dx, dy, dt) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dt in (-1, 0, 1)
+                        if (dx, dy, dt) != (0, 0, 0)], dtype=np.int64)  # the 26-neighbourhood, as ndimage's
 
 
 def normalize_log_weights(log_weights: ArrayLike) -> NDArray[np.float64]:
@@ -152,6 +156,8 @@ def cluster_particles(poses: ArrayLike) -> tuple[NDArray[np.int64], int]:
     local[:, :2] -= lo
     size_x = int(local[:, 0].max()) + 1
     size_y = int(local[:, 1].max()) + 1
+    if size_x * size_y * _THETA_BINS > _DENSE_CELLS_MAX:
+        return _cluster_sparse(local, size_y)
     occupied = np.zeros((size_x, size_y, _THETA_BINS), dtype=bool)
     occupied[local[:, 0], local[:, 1], local[:, 2]] = True
     labels, count = ndimage.label(occupied, structure=np.ones((3, 3, 3), dtype=bool))
@@ -174,6 +180,25 @@ def cluster_particles(poses: ArrayLike) -> tuple[NDArray[np.int64], int]:
             lookup = np.concatenate([[-1], merged])
             return lookup[labels[local[:, 0], local[:, 1], local[:, 2]]].astype(np.int64), int(count)
     return (labels[local[:, 0], local[:, 1], local[:, 2]] - 1).astype(np.int64), int(count)
+
+
+def _cluster_sparse(local: NDArray[np.int64], size_y: int) -> tuple[NDArray[np.int64], int]:
+    """:func:`cluster_particles` over the occupied bins only, for a cloud spread too far for a dense histogram
+    (an odometry jump of a kilometre, a huge initial covariance): the same clusters, numbered alike."""
+    codes = (local[:, 0] * size_y + local[:, 1]) * _THETA_BINS + local[:, 2]
+    occupied, which = np.unique(codes, return_inverse=True)  # sorted: the dense labelling's raster order
+    count = occupied.size
+    theta = occupied % _THETA_BINS
+    x, y = np.divmod(occupied // _THETA_BINS, size_y)
+    nx = x[:, None] + _NEIGHBOURS[:, 0]
+    ny = y[:, None] + _NEIGHBOURS[:, 1]
+    neighbour = (nx * size_y + ny) * _THETA_BINS + (theta[:, None] + _NEIGHBOURS[:, 2]) % _THETA_BINS
+    at = np.minimum(np.searchsorted(occupied, neighbour), count - 1)
+    touching = (nx >= 0) & (ny >= 0) & (ny < size_y) & (occupied[at] == neighbour)
+    sources = np.broadcast_to(np.arange(count)[:, None], touching.shape)[touching]
+    graph = coo_matrix((np.ones(sources.size), (sources, at[touching])), shape=(count, count))
+    clusters, labels = connected_components(graph, directed=False)
+    return labels[which].astype(np.int64), int(clusters)
 
 
 def _normalised(weights: ArrayLike, count: int) -> NDArray[np.float64]:
