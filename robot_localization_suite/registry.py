@@ -24,7 +24,7 @@ from .core.ima.settings import ImaTrackerSettings
 from .core.ir.settings import IRSettings
 from .core.mcl.settings import MclSettings
 from .core.pil.settings import PilSettings
-from .core.scan import LaserMount
+from .core.scan import MAX_MOUNT_OFFSET_M, LaserMount
 from .core.settings import Settings, from_params, read_params_file, setting
 
 __all__ = [
@@ -63,9 +63,9 @@ class NodeSettings(Settings):
     map_yaml: str = setting("", "nav2 map_server YAML loaded at configure; empty: wait for the map topic", read_only=True)
     first_map_only: bool = setting(False, "use the first map received and ignore later ones (nav2)")
     laser_x: float = setting(0.0, "laser position in the base frame, x, when /tf_static has no base -> laser transform",
-                             unit="m", low=-100.0, high=100.0)
+                             unit="m", low=-MAX_MOUNT_OFFSET_M, high=MAX_MOUNT_OFFSET_M)
     laser_y: float = setting(0.0, "laser position in the base frame, y (fallback as laser_x)", unit="m",
-                             low=-100.0, high=100.0)
+                             low=-MAX_MOUNT_OFFSET_M, high=MAX_MOUNT_OFFSET_M)
     laser_yaw: float = setting(0.0, "laser heading in the base frame (fallback as laser_x)", unit="rad",
                                low=-3.1416, high=3.1416)
     laser_upside_down: bool = setting(False, "the laser is mounted upside down, its beam angles turning clockwise "

@@ -261,6 +261,17 @@ def test_an_initial_pose_with_an_unusable_covariance_gets_the_default_spread_and
     assert "is not positive definite: using the default spread (std 0.5 m, 0.5 m, 15 deg)" in logs.text()
 
 
+def test_an_initial_pose_off_the_map_is_taken_as_nav2_does_but_said() -> None:
+    # 700 km off a 1 m map used to be tracked as LOCALIZED with nothing logged (a frame or unit mixed up)
+    adapter, core, logs = make_adapter()
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, np.array([0.5, 0.5, 0.0]), np.eye(3) * 0.01))
+    assert "outside the map" not in logs.text()
+    far = np.array([5e5, 5e5, 0.0])
+    adapter.on_initial_pose_msg(conversions.initial_pose_to_msg(0.0, far, np.eye(3) * 0.01))
+    np.testing.assert_allclose(core.initial_poses[-1], far)
+    assert "initial pose at (500000, 500000) m is outside the map (x 0 to 1 m, y 0 to 1 m)" in logs.text()
+
+
 def test_a_stamped_initial_pose_is_moved_on_by_the_odometry_since_and_older_than_it_is_said() -> None:
     """RViz stamps the pose when clicked: the robot has moved since. A pose older than the odometry kept
     (received before activation) can only be moved on from the oldest odometry: a warning says so."""

@@ -80,3 +80,11 @@ def test_rls_bench_takes_the_mount_from_the_bags_tf_static_upside_down_included(
     spec = bench.registry_spec("mcl_baseline", {"laser_x": -1.0, "laser_upside_down": False})
     assert spec.for_bag(reference.name, laser_mounts=reference.laser_mounts).mount == mount
     assert spec.for_bag(reference.name).mount == LaserMount(-1.0, 0.0, 0.0, False)
+
+
+@pytest.mark.parametrize("pose", [(1e300, 0.0, 0.0), (0.2, -5e5, 0.0), (float("nan"), 0.0, 0.0), (0.0, 0.0, float("inf"))])
+def test_a_transform_that_puts_the_laser_off_the_robot_is_no_mount(pose: tuple[float, float, float]) -> None:
+    # a /tf_static of 1e300 m gave LOCALIZED poses off the map, then an overflow at every scan
+    with pytest.raises(ValueError, match="is not a mount"):
+        LaserMount(*pose)
+    assert LaserMount(0.3, -0.1, 3.1).pose[0] == 0.3

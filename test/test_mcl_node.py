@@ -101,6 +101,96 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
     assert math.isfinite(published[-1].update_ms)
 
 
+def test_an_initial_pose_received_while_inactive_is_checked_at_activation_as_an_active_nodes() -> None:
+    # A NaN pose kept for the activation used to fail it (lifecycle ERROR) at every later activation too.
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=2, seed=2)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=1000", "-p", "min_particles:=200"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    logged: list[tuple[str, str]] = []
+    try:
+        node.trigger_configure()
+        node.adapter.log._sink = lambda level, text: logged.append((level, text))
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
+        bad = conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.01, 0.01, 0.01]))
+        bad.pose.pose.position.x = math.nan
+        node._on_initial_pose(bad)
+        node.trigger_activate()
+        assert node.active
+        assert any("non-finite" in text for _, text in logged), logged
+        good = conversions.initial_pose_to_msg(0.0, run.truth[0], np.diag([0.01, 0.01, 0.01]))
+        node.trigger_deactivate()
+        node._on_initial_pose(good)
+        node.trigger_activate()
+        assert node.active
+        assert np.hypot(*(node.localizer.particles[:, :2].mean(axis=0) - run.truth[0][:2])) < 0.3
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_the_map_in_use_sent_again_while_another_is_set_up_is_the_one_kept() -> None:
+    # map_server publishes the right map again (or a user corrects a wrong one) while a wrong one is being set
+    # up: the newest map wins, though it equals the one in use when it arrives
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    coarse = GridMap(office.data[::4, ::4].copy(), office.resolution * 4, office.origin)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+
+    def settle() -> None:
+        deadline = time.monotonic() + 60.0
+        while (node._work.busy or node._pending_map is not None) and time.monotonic() < deadline:
+            time.sleep(0.02)
+            node._after_work()
+
+    try:
+        node.trigger_configure()
+        node.trigger_activate()
+        node._on_map(conversions.grid_map_to_msg(office, 0.0))
+        settle()
+        node._on_map(conversions.grid_map_to_msg(coarse, 0.0))
+        assert node._work.busy
+        node._on_map(conversions.grid_map_to_msg(office, 0.0))
+        settle()
+        assert node.adapter.current_map.resolution == pytest.approx(office.resolution)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_scans_from_another_laser_frame_are_named_in_a_warning() -> None:
+    # the mount is looked up once; a second laser on the same topic used to be read with the first one's, silently
+    rclpy = pytest.importorskip("rclpy")
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=6, seed=2)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    logged: list[tuple[str, str]] = []
+    try:
+        node.trigger_configure()
+        node.trigger_activate()
+        node.throttled._sink = lambda level, text: logged.append((level, text))
+        node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
+        for k in range(len(run.stamps)):
+            node._on_odom(conversions.odometry_to_msg(run.stamps[k], run.odometry[k], frame_id="odom"))
+            msg = _scan_msg(run.scans[k])
+            msg.header.frame_id = "laser" if k < 3 else "laser_rear"
+            node._on_scan(msg)
+        warned = [text for level, text in logged if level == "warn" and "laser_rear" in text]
+        assert warned and "'laser'" in warned[0], logged
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def test_a_new_map_reseeds_around_the_laser_pose_with_a_mount_offset() -> None:
     """The adapter turns the core's laser estimate into a base estimate without touching the core's own.
 

@@ -404,6 +404,17 @@ def test_a_shorter_range_max_relearns_with_that_range(room: GridMap, tmp_path: P
     assert _pose_error(estimate.pose, truth)[0] < 0.2
 
 
+def test_a_map_coarser_than_the_tiles_is_learned_a_cell_a_tile(tmp_path: Path) -> None:
+    # a map published in the wrong unit (1000 m cells) asked for 2.4e11 tiles of 0.2 m and never ended
+    data = np.zeros((80, 120), dtype=np.int8)
+    data[:2, :] = data[-2:, :] = data[:, :2] = data[:, -2:] = 100
+    coarse = GridMap(data, 1000.0, (0.0, 0.0))
+    localizer = PilLocalizer(_settings(tmp_path))
+    localizer.set_map(coarse)
+    assert localizer.tile_size == 1000.0
+    assert localizer.learning is not None and localizer.learning.tile_count == int((data == 0).sum())
+
+
 # -- cache ---------------------------------------------------------------------------------------
 def test_cached_learning_reloads_identically_and_a_corrupt_cache_is_rebuilt(
     room: GridMap, tmp_path: Path, caplog: pytest.LogCaptureFixture

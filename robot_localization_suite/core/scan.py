@@ -23,6 +23,9 @@ from .se2 import compose
 __all__ = ["Scan", "LaserMount"]
 
 
+MAX_MOUNT_OFFSET_M = 100.0  # a laser farther than this from the base is a wrong transform, not a mount [m]
+
+
 @dataclass(frozen=True)
 class LaserMount:
     """Pose of the laser in the robot base frame [m, m, rad] (tf2 is not available).
@@ -36,6 +39,12 @@ class LaserMount:
     y: float = 0.0
     yaw: float = 0.0
     upside_down: bool = False
+
+    def __post_init__(self) -> None:
+        values = (self.x, self.y, self.yaw)
+        if not all(np.isfinite(values)) or max(abs(self.x), abs(self.y)) > MAX_MOUNT_OFFSET_M:
+            raise ValueError(f"laser mount ({self.x!r} m, {self.y!r} m, {self.yaw!r} rad) is not a mount: its x "
+                             f"and y must be finite and within {MAX_MOUNT_OFFSET_M:g} m of the base")
 
     @property
     def pose(self) -> NDArray[np.float64]:

@@ -37,7 +37,7 @@ from ..registry import LocalizerPlugin, NodeSettings
 from ..ros import nav2, tf
 from ..ros.adapter import AdapterOutput, LocalizerAdapter, ThrottledLog
 from ..ros.background import BackgroundWork
-from ..ros.conversions import initial_pose_from_msg, progress_diagnostics, stamp_to_seconds
+from ..ros.conversions import progress_diagnostics, stamp_to_seconds
 from ..ros.extras import Extra
 from ..ros.params import declare_settings, parameter_values
 from ..ros.qos import MAP_QOS, POSE_QOS, RELIABLE_QOS, SENSOR_INPUT_QOS, SENSOR_QOS, TF_QOS, TF_STATIC_QOS
@@ -142,7 +142,8 @@ class LocalizerNode(LifecycleNode):
         self._watchdog: Any = None
         # Kept across cleanup, as nav2_amcl keeps last_published_pose_: (pose, covariance) of the last estimate.
         self.last_pose: tuple[np.ndarray, np.ndarray] | None = None
-        self._pending_initial_pose: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._mount_frame = ""  # the laser frame the mount in use was looked up for ("": not looked up)
+        self._pending_initial_pose: PoseWithCovarianceStamped | None = None  # received while inactive
         # Slow work (a new map, precomputation for the scanner) runs here, off the executor.
         self._work = BackgroundWork(self._log)
         self._pending_map: Any = None
@@ -221,13 +222,15 @@ class LocalizerNode(LifecycleNode):
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         ns = self.node_settings
+        pending, self._pending_initial_pose = self._pending_initial_pose, None
+        assert self.adapter is not None
         if ns.set_initial_pose:
             self._set_initial_pose(np.array(ns.initial_pose), None, "initial_pose.* parameters")
-        elif self._pending_initial_pose is not None:
-            self._set_initial_pose(*self._pending_initial_pose, "the initial pose received while inactive")
+        elif pending is not None and self.adapter.on_initial_pose_msg(pending):  # checked as an active node's
+            self.get_logger().info("starting from the initial pose received while inactive")
+            self._fresh_method = False
         elif self.last_pose is not None and not ns.always_reset_initial_pose and self._fresh_method:
             self._set_initial_pose(*self.last_pose, "the last known pose")
-        self._pending_initial_pose = None
         now = time.monotonic()
         self._activated_at = now
         self._last_input = {"sensor": now, "odometry": now}
@@ -297,6 +300,8 @@ class LocalizerNode(LifecycleNode):
         self.adapter.log = self.throttled
         self._fresh_method = True
         self._mount_wait_since: float | None = None
+        if mount is None:
+            self._mount_frame = ""  # the laser frame the mount in use was looked up for
         self._waiting: list[tuple[float, Any, Callable[[Any], AdapterOutput | None]]] = []
         if previous is not None:
             if previous.current_map is not None:
@@ -402,12 +407,16 @@ class LocalizerNode(LifecycleNode):
             self.throttled("info", "first_map_only", "ignoring a new map: first_map_only is set")
             return
         grid_map = self.adapter.map_from_msg(msg)
-        if grid_map is None or self.adapter.is_current_map(grid_map):
-            self._map_received = self._map_received or grid_map is not None
+        if grid_map is None:
             return
         if self._work.busy:
-            self._pending_map = grid_map  # the newest map wins; it is set up after the running job
+            # The newest map wins; it is set up after the running job, which may be setting up another map:
+            # compared with the map in use only then (the one in use now may be about to be replaced).
+            self._pending_map = grid_map
             self.throttled("info", "map_queued", f"map queued until {self._work.what} ends")
+            return
+        if self.adapter.is_current_map(grid_map):
+            self._map_received = True
             return
         self._start_map_setup(grid_map)
 
@@ -447,11 +456,17 @@ class LocalizerNode(LifecycleNode):
         if not self._accepting("sensor", "scan"):
             return
         assert self.adapter is not None
+        frame = tf.frame_name(msg.header.frame_id)
         if not self.adapter.mount_known:
-            mount = self._laser_mount(tf.frame_name(msg.header.frame_id))
+            mount = self._laser_mount(frame)
             if mount is None:
                 return
             self.adapter.set_mount(mount)
+            self._mount_frame = frame
+        elif self._mount_frame and frame != self._mount_frame:
+            self.throttled("warn", "scan_frame", f"a scan from frame {frame!r}, but the laser mount in use is that "
+                           f"of {self._mount_frame!r} (looked up at the first scan after configure): used with "
+                           "it. One laser a topic; cleanup and configure to take another laser's mount")
         if self._busy("scans"):
             return
         if self.adapter.preparation_due(msg):
@@ -550,22 +565,30 @@ class LocalizerNode(LifecycleNode):
         """
         base = self.node_settings.base_frame_id
         found = self.tf_buffer.lookup_mount(base, laser_frame, static_only=True) if laser_frame else None
+        refused = False
         if found is not None:
             pose, upside_down = found
-            self.get_logger().info(f"laser mount from /tf_static {base} -> {laser_frame}: "
-                                   f"({pose[0]:g} m, {pose[1]:g} m, {pose[2]:g} rad)"
-                                   f"{', upside down' if upside_down else ''}")
-            return LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
+            try:
+                from_tf = LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
+            except ValueError as exc:
+                refused = True
+                self.get_logger().warning(f"ignoring {base} -> {laser_frame} on /tf_static: {exc}")
+            else:
+                self.get_logger().info(f"laser mount from /tf_static {base} -> {laser_frame}: "
+                                       f"({pose[0]:g} m, {pose[1]:g} m, {pose[2]:g} rad)"
+                                       f"{', upside down' if upside_down else ''}")
+                return from_tf
         now = time.monotonic()
         self._mount_wait_since = self._mount_wait_since or now
-        if now - self._mount_wait_since < _MOUNT_WAIT_S and self.count_publishers("/tf_static"):
+        if not refused and now - self._mount_wait_since < _MOUNT_WAIT_S and self.count_publishers("/tf_static"):
             self.throttled("info", "mount_wait", f"waiting up to {_MOUNT_WAIT_S:g} s for {base} -> "
                            f"{laser_frame or '(no frame)'} on /tf_static before using laser_x/y/yaw")
             return None
         mount = self.node_settings.mount
         self.get_logger().info(f"laser mount from laser_x/y/yaw ({mount.x:g} m, {mount.y:g} m, {mount.yaw:g} rad)"
-                               f"{', upside down' if mount.upside_down else ''}: "
-                               f"/tf_static has no {base} -> {laser_frame or '(no frame)'}")
+                               f"{', upside down' if mount.upside_down else ''}: " + (
+                                   f"/tf_static's {base} -> {laser_frame} is refused" if refused else
+                                   f"/tf_static has no {base} -> {laser_frame or '(no frame)'}"))
         return mount
 
     def _accepting(self, kind: str, what: str) -> bool:
@@ -587,8 +610,8 @@ class LocalizerNode(LifecycleNode):
             if frame != self.node_settings.global_frame_id:
                 self.adapter.on_initial_pose_msg(msg)  # refused, with the message naming both frames
                 return
-            self._pending_initial_pose = initial_pose_from_msg(msg)
-            self.get_logger().info("initial pose received while inactive: applied on activation")
+            self._pending_initial_pose = msg
+            self.get_logger().info("initial pose received while inactive: checked and applied on activation")
             return
         if self._when_idle("initial pose", lambda: self._apply_initial_pose(msg)):
             return

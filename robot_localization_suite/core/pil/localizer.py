@@ -156,10 +156,19 @@ class PilLocalizer:
         self.grid_map = grid_map
         self.learning = None
         self._sheet_features = None
+        if self.settings.tile_size < grid_map.resolution:
+            self._emit("warn", f"tile_size {self.settings.tile_size:g} m is finer than the map's {grid_map.resolution:g} m "
+                               "cells: PIL's tiles are the cells")
         self._learn()
         # The float32 distance field, gradients taken where sampled: 4 bytes a cell.
         self._distance_field = DistanceField(grid_map, compact=True)
         self.reinitialize()
+
+    @property
+    def tile_size(self) -> float:
+        """``r`` [m]: the setting, or the map's cell when that is coarser (finer tiles would only repeat a cell)."""
+        resolution = self.grid_map.resolution if self.grid_map is not None else 0.0
+        return max(self.settings.tile_size, resolution)
 
     def prepare(self, scan: Scan) -> None:
         """Learn for this scanner's geometry now (field of view, range, beam layout) rather than in its first scan."""
@@ -297,7 +306,7 @@ class PilLocalizer:
                                                unknown_stops=settings.unknown_blocks and not settings.mark_unknown_rays)
         self.learning = learn_pseudo_images(
             self.grid_map,
-            tile_size=settings.tile_size,
+            tile_size=self.tile_size,
             angle_count=self._layout.angle_count,
             max_range=self._range,
             unknown_blocks=settings.unknown_blocks,
@@ -534,7 +543,7 @@ class PilLocalizer:
                 angles,
                 ranges,
                 iterations=settings.refine_iterations,
-                max_shift=settings.tile_size,
+                max_shift=self.tile_size,
                 truncation=settings.refine_truncation,
             )
             both = np.concatenate([poses[:refined], better])
@@ -628,7 +637,7 @@ class PilLocalizer:
         near_weights = weights[near] / weights[near].sum()
         covariance = (diffs * near_weights[:, None]).T @ diffs
         quantisation = np.diag(
-            [settings.tile_size**2 / 12.0, settings.tile_size**2 / 12.0, self._layout.sensor_spacing**2 / 12.0]
+            [self.tile_size**2 / 12.0, self.tile_size**2 / 12.0, self._layout.sensor_spacing**2 / 12.0]
         )
         details.update(
             best_score=best_score,

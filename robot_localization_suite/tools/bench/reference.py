@@ -239,7 +239,10 @@ def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) ->
         found = buffer.lookup_mount(frame, laser, static_only=True)
         if found is not None:
             pose, upside_down = found
-            mounts[frame] = LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
+            try:
+                mounts[frame] = LaserMount(float(pose[0]), float(pose[1]), float(pose[2]), upside_down)
+            except ValueError as exc:
+                LOG.warning("%s: ignoring %s -> %s on /tf_static: %s", path.name, frame, laser, exc)
     return mounts
 
 
