@@ -404,6 +404,19 @@ def test_a_shorter_range_max_relearns_with_that_range(room: GridMap, tmp_path: P
     assert _pose_error(estimate.pose, truth)[0] < 0.2
 
 
+def test_a_range_max_shorter_than_a_cell_is_refused_before_any_relearning(room: GridMap, tmp_path: Path) -> None:
+    # a LaserScan with range_max 1e-44 (every beam a no-return) made PIL relearn the map for R = 1e-44 m
+    localizer = PilLocalizer(_settings(tmp_path))
+    localizer.set_map(room)
+    learning = localizer.learning
+    junk = _scan(room, np.array([2.5, 2.1, 0.4]))
+    junk = Scan(junk.stamp, junk.angles, np.full(junk.beam_count, np.inf), 0.0, 1e-44)
+    assert localizer.prepared_for(junk)  # nothing to prepare for it: on_scan says why
+    with pytest.raises(ScanError, match="shorter than a map cell"):
+        localizer.on_scan(junk)
+    assert localizer.learning is learning
+
+
 def test_a_map_coarser_than_the_tiles_is_learned_a_cell_a_tile(tmp_path: Path) -> None:
     # a map published in the wrong unit (1000 m cells) asked for 2.4e11 tiles of 0.2 m and never ended
     data = np.zeros((80, 120), dtype=np.int8)

@@ -349,6 +349,10 @@ class PilLocalizer:
         field of view [rad] and range [m]."""
         if scan.beam_count < 2:
             raise ScanError(f"PIL needs a scan of at least 2 beams, got {scan.beam_count}")
+        if self.grid_map is not None and not scan.range_max >= self.grid_map.resolution:
+            # learning for it would cast every ray for a range that sees no cell
+            raise ScanError(f"scan range_max {scan.range_max!r} m is shorter than a map cell "
+                            f"({self.grid_map.resolution:g} m): no scanner's")
         increment = abs(float(scan.angles[1] - scan.angles[0]))
         if not np.isfinite(increment) or increment <= 0.0:
             raise ScanError(f"scan angle increment {increment!r} is unusable")
