@@ -215,6 +215,8 @@ def test_occupancy_grid_fields_are_checked() -> None:
         GridMap.from_occupancy_grid(width=1, height=1, resolution=1.0, origin_x=0, origin_y=0, origin_yaw=0.3, data=[0])
     with pytest.raises(MapError, match="resolution must be positive.*-1"):
         GridMap(np.zeros((2, 2), np.int8), -1.0)
+    with pytest.raises(MapError, match="resolution 1e-30 m is finer than 0.001 m"):
+        GridMap(np.zeros((2, 2), np.int8), 1e-30)  # world_to_cell overflowed on it
 
 
 def test_world_cell_conversions() -> None:

@@ -40,6 +40,8 @@ MAP_IMAGE_FORMATS = ("pgm", "png")
 # Positions farther than this from their frame's origin [m] are refused (maps, odometry, initial poses): no
 # robot travels 1,000 km, and within it float64 keeps micrometres (at 6.6e16 m, one step is 8 m).
 MAX_COORDINATE_M = 1e6
+# Cells finer than this [m] are refused: no laser map has them, and coordinates divided by them overflow.
+MIN_RESOLUTION_M = 1e-3
 
 # What nav2 map_saver writes for each cell class in a trinary PGM.
 _PGM_OCCUPIED, _PGM_FREE, _PGM_UNKNOWN = 0, 254, 205
@@ -70,6 +72,9 @@ class GridMap:
             raise MapError(f"map data must be a non-empty 2-D array, got shape {data.shape!r}")
         if not np.isfinite(self.resolution) or self.resolution <= 0.0:
             raise MapError(f"map resolution must be positive, got {self.resolution!r}")
+        if self.resolution < MIN_RESOLUTION_M:
+            raise MapError(f"map resolution {self.resolution!r} m is finer than {MIN_RESOLUTION_M:g} m: no laser "
+                           "map's cells (a unit mixed up?)")
         if len(self.origin) != 2 or not np.all(np.isfinite(self.origin)):
             raise MapError(f"map origin must be two finite numbers, got {self.origin!r}")
         far = np.abs(np.asarray(self.origin, dtype=np.float64)) + np.array(data.shape[::-1]) * self.resolution
