@@ -261,6 +261,19 @@ def test_an_initial_pose_with_an_unusable_covariance_gets_the_default_spread_and
     assert "is not positive definite: using the default spread (std 0.5 m, 0.5 m, 15 deg)" in logs.text()
 
 
+def test_scans_refused_by_a_clock_at_zero_say_that_the_clock_has_not_started() -> None:
+    # use_sim_time without /clock: the node's clock reads 0 and every scan of a bag is "from the future"
+    logs = Logs()
+    clock = [0.0]
+    adapter = LocalizerAdapter(EchoLocalizer(), node_name="echo", log=logs, clock=lambda: clock[0])
+    adapter.set_map(GridMap(np.zeros((10, 10), np.int8), 0.1))
+    assert adapter.on_scan_msg(scan_msg(1_700_000_000.0, [0.5] * 5)) is None
+    assert "use_sim_time with no /clock" in logs.text()
+    clock[0] = 1_700_000_000.0
+    adapter.on_odom_msg(odom_msg(1_700_000_000.0, [0.1, 0.1, 0.0]))
+    assert adapter.on_scan_msg(scan_msg(1_700_000_000.1, [0.5] * 5)) is not None
+
+
 def test_an_initial_pose_off_the_map_is_taken_as_nav2_does_but_said() -> None:
     # 700 km off a 1 m map used to be tracked as LOCALIZED with nothing logged (a frame or unit mixed up)
     adapter, core, logs = make_adapter()

@@ -550,8 +550,10 @@ class LocalizerAdapter:
         verdict = self.clock.admit(stream, stamp)
         if verdict == "future":
             now = self.clock.clock() if self.clock.clock is not None else math.nan
+            hint = (": the clock has not started (use_sim_time with no /clock yet? `ros2 bag play --clock`)"
+                    if now == 0.0 else "")
             self.log("warn", f"{stream}_future", f"ignoring {stream} stamped {stamp:.3f} s: more than "
-                     f"{self.clock.max_future_s:g} s ahead of the node's clock ({now:.3f} s)")
+                     f"{self.clock.max_future_s:g} s ahead of the node's clock ({now:.3f} s){hint}")
         elif verdict == "older":
             self.log("warn", f"{stream}_time", f"ignoring {stream} stamped {stamp:.3f} s, older than the last one")
         elif verdict == "reset":
