@@ -79,3 +79,31 @@ def test_console_script_help() -> None:
     command = [str(script)] if script.exists() else [sys.executable, "-m", "robot_localization_suite.tools.bag_repair"]
     result = subprocess.run([*command, "--help"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and result.stdout.startswith("usage: rls_bag_repair [-h] IN OUT")
+
+
+def test_a_message_whose_bytes_are_damaged_is_skipped_and_the_others_kept(tmp_path: Path, capsys) -> None:
+    # 3000 bytes overwritten in the middle of a bag stopped rls_bench and rls_bag_repair with an RMWError
+    import numpy as np
+
+    from robot_localization_suite.ros import conversions
+    from robot_localization_suite.ros.bag import BagWriter
+
+    bag = tmp_path / "damaged"
+    with BagWriter(bag) as writer:  # uncompressed: the damage reaches a message, not a chunk's compression
+        for k in range(20):
+            msg = conversions.odometry_to_msg(1.0 + k, np.array([0.1 * k, 0.0, 0.0]), frame_id="odom")
+            writer.write("/odom", msg, int((1.0 + k) * 1e9))
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    frame = b"\x05\x00\x00\x00odom\x00"  # frame_id "odom" as CDR: its length, then the characters
+    tenth = [i for i in range(len(data)) if data.startswith(frame, i)][9]
+    data[tenth:tenth + 4] = b"\xff\xff\xff\x0f"  # a length past the end of the message
+    mcap.write_bytes(bytes(data))
+    reading = read_bag(bag)
+    kept = list(reading)
+    assert len(kept) == 19 and reading.skipped == 1
+    assert [m.stamp_ns for m in kept] == [int((1.0 + k) * 1e9) for k in range(20) if k != 9]
+    out = tmp_path / "repaired"
+    assert bag_repair.main([str(bag), str(out)]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith("rls_bag_repair: wrote 19 messages (/odom 19)") and "1 undecodable message(s) left out" in line

@@ -163,10 +163,16 @@ class BagMessages(Iterator[BagMessage]):
     """
 
     def __init__(self, messages: Iterator[BagMessage], recovery: Recovery | None,
-                 reader: Reader | None = None) -> None:
+                 reader: Reader | None = None, decoder: _Decoder | None = None) -> None:
         self._messages = messages
         self._reader = reader
+        self._decoder = decoder
         self.recovery = recovery
+
+    @property
+    def skipped(self) -> int:
+        """Messages left out so far because their bytes could not be decoded (damaged, the chunk intact)."""
+        return self._decoder.skipped if self._decoder is not None else 0
 
     def __iter__(self) -> BagMessages:
         return self
@@ -227,8 +233,33 @@ def bag_topics(path: str | os.PathLike[str], remap: Mapping[str, str] | None = N
     return {name: kind for topic, kind in found.items() if (name := remapped_topic(topic, remap)) is not None}
 
 
+class _Decoder:
+    """Deserialises one reading's messages; one whose bytes are damaged (its chunk intact, its CDR not) is
+    skipped and counted, and said once per bag and process when the reading ends."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.skipped = 0
+        self._first = ""
+
+    def __call__(self, raw: bytes, cls: type, topic: str, stamp_ns: int) -> Any | None:
+        try:
+            return deserialize_message(raw, cls)
+        except (RuntimeError, ValueError, TypeError) as exc:  # rclpy's RMWError is a RuntimeError
+            self.skipped += 1
+            self._first = self._first or f"{topic} at {stamp_ns * 1e-9:.3f} s: {exc}"
+            return None
+
+    def report(self) -> None:
+        key = (str(self.path.resolve()), f"undecodable {self.skipped}")
+        if self.skipped and key not in _WARNED:
+            _WARNED.add(key)
+            LOG.warning("bag %r: %d message(s) could not be decoded and were skipped (the first: %s)",
+                        str(self.path), self.skipped, self._first)
+
+
 def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None,
-                    remap: Mapping[str, str] | None) -> Iterator[BagMessage]:
+                    remap: Mapping[str, str] | None, decode: _Decoder) -> Iterator[BagMessage]:
     try:
         names = {c.id: remapped_topic(c.topic, remap) for c in reader.connections}
         connections = [c for c in reader.connections
@@ -236,26 +267,33 @@ def _sound_messages(reader: Reader, path: Path, wanted: set[str] | None,
         classes = {c.id: message_class(c.msgtype) for c in connections}
         try:
             for connection, stamp_ns, raw in reader.messages(connections=connections):
-                yield BagMessage(str(names[connection.id]), int(stamp_ns),
-                                 deserialize_message(raw, classes[connection.id]))
+                topic = str(names[connection.id])
+                msg = decode(raw, classes[connection.id], topic, int(stamp_ns))
+                if msg is not None:
+                    yield BagMessage(topic, int(stamp_ns), msg)
         except (ReaderError, OSError, ValueError) as exc:
             raise BagError(f"bag {str(path)!r} is corrupt: {exc}") from exc
     finally:
+        decode.report()
         if reader.is_open:
             reader.close()
 
 
 def _recovered_messages(recovered: RecoveredBag, path: Path, wanted: set[str] | None,
-                        remap: Mapping[str, str] | None) -> Iterator[BagMessage]:
+                        remap: Mapping[str, str] | None, decode: _Decoder) -> Iterator[BagMessage]:
     classes: dict[str, type] = {}
     names = {topic: remapped_topic(topic, remap) for topic in recovered.topics}
     sources = [topic for topic, name in names.items() if name is not None and (wanted is None or name in wanted)]
     try:
         for topic, type_name, stamp_ns, raw in recovered.messages(sources):
             cls = classes.get(type_name) or classes.setdefault(type_name, message_class(type_name))
-            yield BagMessage(str(names[topic]), stamp_ns, deserialize_message(raw, cls))
+            msg = decode(raw, cls, str(names[topic]), stamp_ns)
+            if msg is not None:
+                yield BagMessage(str(names[topic]), stamp_ns, msg)
     except OSError as exc:
         raise BagError(f"bag {str(path)!r} cannot be read: {exc}") from exc
+    finally:
+        decode.report()
 
 
 def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, *,
@@ -265,7 +303,7 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
 
     A damaged bag (cut short, no footer, metadata.yaml missing or stale) yields every complete
     message before the damage; a warning and the result's ``recovery`` say how many and where
-    reading stopped.
+    reading stopped. A message whose own bytes are damaged is skipped (``skipped``, a warning).
 
     Raises:
         BagError: the bag is missing, holds nothing readable, or an unknown message type.
@@ -273,10 +311,12 @@ def read_bag(path: str | os.PathLike[str], topics: Iterable[str] | None = None, 
     path = Path(path)
     wanted = set(topics) if topics is not None else None
     reader, recovered = _open(path)
+    decode = _Decoder(path)
     if recovered is not None:
-        return BagMessages(_recovered_messages(recovered, path, wanted, remap), recovered.recovery)
+        return BagMessages(_recovered_messages(recovered, path, wanted, remap, decode), recovered.recovery,
+                           decoder=decode)
     assert reader is not None
-    return BagMessages(_sound_messages(reader, path, wanted, remap), None, reader)
+    return BagMessages(_sound_messages(reader, path, wanted, remap, decode), None, reader, decoder=decode)
 
 
 def replay(

@@ -35,14 +35,17 @@ class RepairReport:
     target: Path
     topic_counts: dict[str, int]
     recovery: Recovery | None  # None: the source read normally, the target is a copy
+    skipped: int = 0  # messages whose bytes could not be decoded, left out
 
     def summary(self) -> str:
         total = sum(self.topic_counts.values())
         topics = ", ".join(f"{topic} {count}" for topic, count in self.topic_counts.items())
         head = f"rls_bag_repair: wrote {total} messages ({topics}) into {str(self.target)!r}"
+        left_out = f"; {self.skipped} undecodable message(s) left out" if self.skipped else ""
         if self.recovery is None:
-            return f"{head}; {str(self.source)!r} was sound: nothing to repair"
-        return f"{head}; from {str(self.source)!r}: {self.recovery.summary()}"
+            return (f"{head}{left_out}" if self.skipped else
+                    f"{head}; {str(self.source)!r} was sound: nothing to repair")
+        return f"{head}; from {str(self.source)!r}: {self.recovery.summary()}{left_out}"
 
 
 def repair(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> RepairReport:
@@ -76,7 +79,7 @@ def repair(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> Re
         (staging / target.name).rename(target)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    return RepairReport(source, target, counts, recovery)
+    return RepairReport(source, target, counts, recovery, messages.skipped)
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -75,6 +75,7 @@ class BagReference:
     map_msg_grid: GridMap | None
     sensor_counts: dict[str, int]
     recovery: Recovery | None = None  # what was read back from a damaged bag; None: the bag is sound
+    undecodable: int = 0  # messages of its truth, odometry and map topics whose bytes could not be decoded
     map_change_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s] of later /map
     reinitialize_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s]
     odometry_noise: dict[str, float] | None = None  # alpha1..alpha4 the bag declares for its /odom, if it does
@@ -184,6 +185,7 @@ def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None
         map_msg_grid=map_grid,
         sensor_counts={t: counts.get(t, 0) for t in (SCAN_TOPIC, IMAGE_TOPIC)},
         recovery=recovery,
+        undecodable=messages.skipped,
         map_change_stamps=np.array(map_changes, dtype=np.float64),
         reinitialize_stamps=np.array(requests, dtype=np.float64),
         odometry_noise=odometry_noise,

@@ -22,11 +22,12 @@ __all__ = ["summarize_run", "summarize_global_fixes"]
 def _recovery_fields(reference: BagReference) -> dict[str, Any]:
     """``recovered: true`` and how much, for a run on what was read back from a damaged bag."""
     recovery = reference.recovery
+    undecodable = {"undecodable_messages": reference.undecodable} if reference.undecodable else {}
     if recovery is None:
-        return {}
+        return undecodable
     last = recovery.last_log_time_ns
     return {"recovered": True, "recovered_messages": recovery.messages,
-            "recovered_until_s": round(last * 1e-9, 3) if last is not None else None}
+            "recovered_until_s": round(last * 1e-9, 3) if last is not None else None, **undecodable}
 
 
 def _rate(values: list[bool] | None) -> float | None:

@@ -117,6 +117,9 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
             if fields.get("recovered"):
                 notes.append(f"recovered from a damaged bag ({fields.get('recovered_messages')} messages, "
                              f"to {_fmt(fields.get('recovered_until_s'))} s)")
+            if fields.get("undecodable_messages"):
+                notes.append(f"{fields['undecodable_messages']} damaged messages of its truth, odometry or map "
+                             "skipped")
             if fields.get("ground_truth") is False:
                 notes.append("no ground truth")
             if fields.get("update_errors"):
