@@ -587,6 +587,13 @@ def test_command_line_refuses_bad_arguments(kidnap_bag, tmp_path, capsys):
     assert bench.main([str(path), "--set", "bad", "--out", str(tmp_path)]) == 1
     assert "name.param=value" in capsys.readouterr().err
     assert bench.main(["--out", str(tmp_path)]) == 1
+    # a value that is no YAML, or a misspelt localizer (its value silently dropped before), is one line
+    for bad, said in ((["--set", "mcl_baseline.max_particles=[1,2"], "the value '[1,2' is not YAML"),
+                      (["--sweep", "mcl_baseline.max_particles=[1"], "the value '[1' is not YAML"),
+                      (["--set", "mcl_basline.max_particles=100"], "--set names no localizer: mcl_basline")):
+        assert bench.main([str(path), *bad, "--out", str(tmp_path)]) == 1
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err, err
     assert bench.cli._parse_overrides(["mcl_baseline.max_particles=5000", "ial_localizer.outliers=2.5"]) == {
         "mcl_baseline": {"max_particles": 5000}, "ial_localizer": {"outliers": 2.5}}
 

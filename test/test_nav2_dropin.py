@@ -257,3 +257,8 @@ def test_silent_inputs_are_named_and_a_wrong_type_is_one_line(tmp_path: Path, ro
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1].endswith("parameter max_particles must be an integer, got 'lots'")
     assert "Traceback" not in result.stderr + result.stdout
+    # a value rcl cannot even parse (a YAML list left open) was rcl's traceback
+    result = subprocess.run([sys.executable, "-m", "robot_localization_suite.nodes.mcl_baseline", "--ros-args",
+                             "-p", "max_particles:=[1,2"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "Couldn't parse parameter override rule" in result.stderr
+    assert "Traceback" not in result.stderr + result.stdout

@@ -38,6 +38,7 @@ __all__ = [
     "flatten_params",
     "help_text",
     "read_params_file",
+    "yaml_value",
     "params_from_ros_args",
 ]
 
@@ -388,6 +389,19 @@ def read_params_file(path: str | Path, node_name: str) -> dict[str, Any]:
     return merged
 
 
+def yaml_value(raw: str, where: str) -> Any:
+    """``raw`` read as one YAML value, as ROS reads ``-p name:=value``.
+
+    Raises:
+        SettingsError: it is no YAML (naming ``where`` and the value).
+    """
+    try:
+        return yaml.safe_load(raw)
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise SettingsError(f"{where}: the value {raw!r} is not YAML ({problem})") from None
+
+
 def params_from_ros_args(argv: Sequence[str], node_name: str) -> dict[str, Any]:
     """Parameter values from ``--ros-args`` (``-p NAME:=VALUE``, ``--params-file FILE``), without rclpy.
 
@@ -410,7 +424,7 @@ def params_from_ros_args(argv: Sequence[str], node_name: str) -> dict[str, Any]:
             name, sep, raw = args[index].partition(":=")
             if not sep:
                 raise SettingsError(f"parameter argument {args[index]!r} must be NAME:=VALUE")
-            values[name] = yaml.safe_load(raw) if raw else ""
+            values[name] = yaml_value(raw, f"parameter argument {args[index]!r}") if raw else ""
         elif in_ros_args and arg == "--params-file" and index + 1 < len(args):
             index += 1
             values.update(read_params_file(args[index], node_name))

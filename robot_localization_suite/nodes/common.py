@@ -108,7 +108,11 @@ def run_node(
     argv = list(sys.argv if argv is None else argv)
     from rclpy.utilities import remove_ros_args
 
-    options = parser.parse_args(remove_ros_args(argv)[1:])
+    try:
+        options = parser.parse_args(remove_ros_args(argv)[1:])
+    except RuntimeError as exc:  # rcl's RCLInvalidROSArgsError: a -p value that is no YAML, an unknown flag
+        print(f"{parser.prog}: {str(exc).split(', at /')[0]}", file=sys.stderr)
+        return 2
     stop = init_ros(argv)
     node = None
     try:

@@ -22,10 +22,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from ... import registry
 from ...core.errors import BagError, LocalizationSuiteError
+from ...core.settings import yaml_value
 from .cv import cv_modes, find_split_indexes, run_cv
 from .cv_tables import append_cv_section, cv_tables
 from .executor import DaskExecutor, Executor, SequentialExecutor, dask_available
@@ -45,8 +44,9 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
         name, dot, param = key.partition(".")
         if not sep or not dot or not name or not param:
             raise ValueError(f"--set expects name.param=value, got {item!r}")
-        overrides.setdefault(name, {})[param] = yaml.safe_load(raw)
+        overrides.setdefault(name, {})[param] = yaml_value(raw, f"--set {item}")
     return overrides
+
 
 
 def _name_and_path(item: str, option: str, form: str) -> tuple[str, Path]:
@@ -251,6 +251,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         available = list(registry.PLUGINS)
         names = _split_names(args.localizers) or [n for n in available if n in sweeps] or available
         unknown = [n for n in names if n not in available]
+        misnamed = sorted(set(overrides) - set(available))
+        if misnamed:  # a typo would silently leave the value out
+            raise ValueError(f"--set names no localizer: {', '.join(misnamed)}; available: {', '.join(available)}")
         if unknown:
             raise ValueError(f"localizer(s) {', '.join(unknown)} not available; available: {', '.join(available) or 'none'}")
         if not names:

@@ -15,8 +15,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from ...core.settings import yaml_value
 from .specs import LocalizerSpec, registry_spec
 from .tables import _fmt
 
@@ -43,7 +42,7 @@ def parse_sweeps(items: Sequence[str]) -> dict[str, dict[str, list[Any]]]:
     for item in items:
         key, sep, raw = item.partition("=")
         name, dot, param = key.partition(".")
-        values = [yaml.safe_load(v) for v in raw.split(",") if v.strip()]
+        values = [yaml_value(v, f"--sweep {item}") for v in raw.split(",") if v.strip()]
         if not sep or not dot or not name or not param or not values:
             raise ValueError(f"--sweep expects name.param=value,value,..., got {item!r}")
         if param in sweeps.get(name, {}):
