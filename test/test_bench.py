@@ -26,7 +26,7 @@ from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, OdometryMot
 from robot_localization_suite.core.progress import progress_disabled
 from robot_localization_suite.core.raycast import RayCaster
 from robot_localization_suite.ros import conversions
-from robot_localization_suite.ros.bag import BagWriter
+from robot_localization_suite.ros.bag import BagWriter, read_bag
 from robot_localization_suite.tools import bench
 from robot_localization_suite.tools import scan_coverage as bench_scan_coverage
 
@@ -814,3 +814,42 @@ def test_the_replay_applies_a_map_change_and_a_reinitialization_where_the_bag_ha
     assert fields["false_localized_rate"] == pytest.approx(10 / 201, abs=1e-4)
     table = (tmp_path / "out" / "summary.md").read_text()
     assert "after the map change at 105 s: correct 0.857, LOCALIZED 1, false LOCALIZED 0.143" in table
+
+
+def test_a_bags_bad_truth_and_refused_map_are_said_not_hidden(kidnap_bag, tmp_path, capsys):
+    # NaN ground-truth poses were dropped without a word; a /map refused (resolution 0) read as "no map"
+    path, truth = kidnap_bag
+    bad = tmp_path / "bad_truth_and_map"
+    seen = 0
+    with BagWriter(bad) as writer:
+        for item in read_bag(path):
+            msg = item.msg
+            if item.topic == "/ground_truth":
+                seen += 1
+                if seen % 10 == 0:
+                    msg.pose.pose.position.x = float("nan")
+            elif item.topic == "/map":
+                msg.info.resolution = 0.0
+            writer.write(item.topic, msg, item.stamp_ns)
+    summary = bench.run_benchmark([bad], [echo_spec(truth, constant_offset)], tmp_path / "out", isolate=False,
+                                  plots=False)
+    fields = summary["bad_truth_and_map"]["echo"]
+    assert "its /map was refused: map resolution must be positive, got 0.0" in fields["error"]
+    assert "its /map was refused" in capsys.readouterr().err
+    reference = bench.load_reference(bad)
+    assert reference.truth_not_finite == seen // 10 and reference.truth_messages == seen
+    table = bench.summary_table({"bad_truth_and_map": {"echo": {"outputs": 1, "ground_truth_not_finite": 4}}})
+    assert "4 ground-truth poses not finite, left out" in table
+
+
+def test_command_line_refuses_counts_and_times_that_mean_nothing(kidnap_bag, tmp_path, capsys):
+    path, _ = kidnap_bag
+    for bad, said in ((["--every", "0"], "--every: must be at least 1, got 0"),
+                      (["--max-seconds", "-1"], "--max-seconds: must be a finite number of seconds above 0")):
+        with pytest.raises(SystemExit):
+            bench.main([str(path), *bad, "--out", str(tmp_path)])
+        assert said in capsys.readouterr().err
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert bench.main([str(path), "--localizers", "mcl_baseline", "--out", str(afile)]) == 1
+    assert "is a file, not a directory" in capsys.readouterr().err

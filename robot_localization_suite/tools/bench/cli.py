@@ -49,6 +49,28 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
 
 
 
+def _at_least_one(text: str) -> int:
+    """An argparse type: an integer of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _positive_seconds(text: str) -> float:
+    """An argparse type: a finite number of seconds above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (value > 0.0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds above 0, got {text!r}")
+    return value
+
+
 def _name_and_path(item: str, option: str, form: str) -> tuple[str, Path]:
     """``NAME=PATH`` of ``option``, both parts non-empty."""
     name, sep, path = item.partition("=")
@@ -180,7 +202,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--skip", action="append", default=[], metavar="NAME:BAG_GLOB",
                         help="with --all, leave this localizer out on matching bags")
     parser.add_argument("--global-fixes", action="store_true", help="single-scan global fixes instead of replays")
-    parser.add_argument("--every", type=int, default=10, help="with --global-fixes: use every N-th scan (default: 10)")
+    parser.add_argument("--every", type=_at_least_one, default=10, help="with --global-fixes: use every N-th scan (default: 10)")
     parser.add_argument("--with-global-fixes", action="store_true",
                         help="after the replays, also run --global-fixes into OUT/global_fixes and append its "
                         "table to OUT/summary.md")
@@ -192,7 +214,7 @@ def _parser() -> argparse.ArgumentParser:
                         "<name>_cv.yaml of carmen_to_bag --blocks, or a directory of them), on the block's honest map "
                         "and on the whole-log map, in the modes the other options ask for; into OUT/cv (appended to "
                         "OUT/summary.md when bags run too)")
-    parser.add_argument("--max-seconds", type=float, default=None, help="stop each run after this wall time [s] (default: no limit)")
+    parser.add_argument("--max-seconds", type=_positive_seconds, default=None, help="stop each run after this wall time [s] (default: no limit)")
     parser.add_argument("--in-process", action="store_true", help="run in this process, one after another, not one "
                         "child per run (no Dask)")
     parser.add_argument("--workers", type=int, default=None, metavar="N",
@@ -232,6 +254,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor: Executor | None = None
     replays = None  # the replays in --mode, which --compare-with sets beside the other run's
     try:
+        if args.out.exists() and not args.out.is_dir():
+            raise ValueError(f"--out {str(args.out)!r} is a file, not a directory")
         overrides = _parse_overrides(args.overrides)
         params_files = _parse_params_files(args.params_files)
         skips = _parse_skips(args.skip)

@@ -76,6 +76,9 @@ class BagReference:
     sensor_counts: dict[str, int]
     recovery: Recovery | None = None  # what was read back from a damaged bag; None: the bag is sound
     undecodable: int = 0  # messages of its truth, odometry and map topics whose bytes could not be decoded
+    truth_not_finite: int = 0  # ground-truth poses left out as not finite
+    truth_messages: int = 0  # ground-truth messages in the bag (finite or not)
+    map_refused: str = ""  # why its /map message was not used ("" when it was, or there was none)
     map_change_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s] of later /map
     reinitialize_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # log times [s]
     odometry_noise: dict[str, float] | None = None  # alpha1..alpha4 the bag declares for its /odom, if it does
@@ -109,17 +112,19 @@ def _topic_counts(path: Path) -> dict[str, int]:
         return {}
 
 
-def _trajectory(messages: list[BagMessage]) -> metrics.Trajectory | None:
+def _trajectory(messages: list[BagMessage]) -> tuple[metrics.Trajectory | None, int]:
+    """The poses of ``messages`` (None without any finite one), and how many were left out as not finite."""
     from ...ros import conversions
 
     if not messages:
-        return None
+        return None, 0
     stamps, poses = zip(*(conversions.odometry_from_msg(m.msg) for m in messages), strict=True)
     poses_arr = np.array(poses)
     keep = np.all(np.isfinite(poses_arr), axis=1)
+    dropped = int((~keep).sum())
     if not keep.any():
-        return None
-    return metrics.Trajectory(np.array(stamps)[keep], poses_arr[keep])
+        return None, dropped
+    return metrics.Trajectory(np.array(stamps)[keep], poses_arr[keep]), dropped
 
 
 def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None = None) -> BagReference:
@@ -140,6 +145,7 @@ def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None
     odometry_noise = _declared_odometry_noise(path, bag_custom_data(path))
     truth_msgs, odom_msgs = [], []
     map_grid = None
+    map_refused = ""  # why the bag's /map was not used
     maps_seen = 0
     map_changes: list[float] = []
     requests: list[float] = []
@@ -166,11 +172,12 @@ def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None
             try:
                 map_grid = conversions.grid_map_from_msg(item.msg)
             except MapError as exc:
+                map_refused = str(exc)
                 LOG.warning("bag %s: ignoring its /map message: %s", path.name, exc)
         elif item.topic == REINITIALIZE_TOPIC:
             requests.append(item.stamp_ns * 1e-9)
-    truth = _trajectory(truth_msgs)
-    odometry = _trajectory(odom_msgs) if odom_msgs else _tf_odometry(path, tf_msgs, static_tf)
+    truth, truth_dropped = _trajectory(truth_msgs)
+    odometry = _trajectory(odom_msgs)[0] if odom_msgs else _tf_odometry(path, tf_msgs, static_tf)
     kidnaps = metrics.detect_kidnappings(truth, odometry) if truth is not None else np.zeros(0, dtype=np.int64)
     recovery = messages.recovery
     counts = recovery.topic_counts if recovery is not None else _topic_counts(path)
@@ -186,6 +193,9 @@ def load_reference(path: str | os.PathLike[str], remap: Mapping[str, str] | None
         sensor_counts={t: counts.get(t, 0) for t in (SCAN_TOPIC, IMAGE_TOPIC)},
         recovery=recovery,
         undecodable=messages.skipped,
+        truth_not_finite=truth_dropped,
+        truth_messages=len(truth_msgs),
+        map_refused=map_refused,
         map_change_stamps=np.array(map_changes, dtype=np.float64),
         reinitialize_stamps=np.array(requests, dtype=np.float64),
         odometry_noise=odometry_noise,

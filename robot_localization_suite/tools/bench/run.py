@@ -214,8 +214,10 @@ def run_benchmark(
     for reference in references:
         maps[reference.name] = resolve_map(reference, map_yaml)
         if reference.ground_truth is None:
-            LOG.warning("bag %s has no %s: reporting timing only", reference.name, TRUTH_TOPIC)
-            print(f"rls_bench: bag {reference.name} has no {TRUTH_TOPIC}; reporting timing only", file=sys.stderr)
+            what = (f"has no {TRUTH_TOPIC}" if not reference.truth_messages else
+                    f"has no finite pose among its {reference.truth_messages} {TRUTH_TOPIC} messages")
+            LOG.warning("bag %s %s: reporting timing only", reference.name, what)
+            print(f"rls_bench: bag {reference.name} {what}; reporting timing only", file=sys.stderr)
     planned: list[tuple[BagReference, LocalizerSpec]] = []
     for reference, spec, skip in _plan(references, specs, honour_skips=honour_skips, mode=mode):
         if skip is not None:
@@ -223,8 +225,11 @@ def run_benchmark(
             continue
         grid_map, map_source = maps[reference.name]
         if grid_map is None and not spec.uses_camera:
-            summary[reference.name][spec.name] = {"mode": mode, "error": "no map: give --map, a /map in the bag, "
-                                                  f"or one of {', '.join(str(p) for p in map_candidates(reference.name))}"}
+            refused = f" (its /map was refused: {reference.map_refused})" if reference.map_refused else ""
+            error = (f"no map{refused}: give --map, a /map in the bag, "
+                     f"or one of {', '.join(str(p) for p in map_candidates(reference.name))}")
+            print(f"rls_bench: bag {reference.name}, {spec.name}: {error}", file=sys.stderr)
+            summary[reference.name][spec.name] = {"mode": mode, "error": error}
             continue
         summary[reference.name][spec.name] = {}  # the table keeps the planned order, whatever finishes first
         planned.append((reference, spec))

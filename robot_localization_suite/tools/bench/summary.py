@@ -23,6 +23,8 @@ def _recovery_fields(reference: BagReference) -> dict[str, Any]:
     """``recovered: true`` and how much, for a run on what was read back from a damaged bag."""
     recovery = reference.recovery
     undecodable = {"undecodable_messages": reference.undecodable} if reference.undecodable else {}
+    if reference.truth_not_finite:
+        undecodable["ground_truth_not_finite"] = reference.truth_not_finite
     if recovery is None:
         return undecodable
     last = recovery.last_log_time_ns
@@ -119,7 +121,8 @@ def summarize_run(record: RunRecord, reference: BagReference) -> tuple[dict[str,
         fields["odometry_from"] = record.odometry_from
     fields.update(_recovery_fields(reference))
     if truth is None:
-        fields["note"] = "bag has no /ground_truth: timing only"
+        fields["note"] = ("bag has no /ground_truth: timing only" if not reference.truth_messages else
+                          f"none of the {reference.truth_messages} /ground_truth poses is finite: timing only")
     return fields, series
 
 

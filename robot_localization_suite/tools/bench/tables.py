@@ -120,6 +120,8 @@ def summary_table(summary: Mapping[str, Mapping[str, Mapping[str, Any]]]) -> str
             if fields.get("undecodable_messages"):
                 notes.append(f"{fields['undecodable_messages']} damaged messages of its truth, odometry or map "
                              "skipped")
+            if fields.get("ground_truth_not_finite"):
+                notes.append(f"{fields['ground_truth_not_finite']} ground-truth poses not finite, left out")
             if fields.get("ground_truth") is False:
                 notes.append("no ground truth")
             if fields.get("update_errors"):
