@@ -167,6 +167,36 @@ def test_non_numeric_field_is_reported(tmp_path):
     assert len(log.scans) == sum(line.startswith("FLASER") for line in lines) - 1
 
 
+def test_a_line_whose_beam_count_does_not_match_its_readings_is_skipped(tmp_path):
+    # FLASER 180 with 181 readings was read with every field after them shifted: the stamp from odom_theta.
+    lines = write_log(tmp_path / "flaser.log", corridor_poses(5)).read_text().splitlines(keepends=True)
+    for line_number, count in ((3, "180"), (4, "182")):
+        tokens = lines[line_number - 1].split()
+        tokens[1] = count
+        lines[line_number - 1] = " ".join(tokens) + "\n"
+    (tmp_path / "flaser.log").write_text("".join(lines))
+    skipped = []
+    log = carmen_to_bag.parse_carmen_log(tmp_path / "flaser.log", on_skip=lambda n, why: skipped.append((n, why)))
+    assert [s.line_number for s in log.scans] == [2, 5, 6]
+    assert skipped == [
+        (3, "malformed FLASER line (192 fields, 191 expected for 180 beams (the beam count does not match the "
+            "readings))"),
+        (4, "malformed FLASER line (192 fields, 193 expected for 182 beams (the beam count does not match the "
+            "readings))"),
+    ]
+    # ROBOTLASER1 likewise: one beam short, the last reading (0, no return) was taken for the remission count.
+    poses = corridor_poses(2)
+    tokens = robotlaser_line(corridor_ranges(poses[1]), poses[1], 10.25).split()
+    tokens[8], tokens[8 + 181] = "180", "0"
+    log_path = tmp_path / "robotlaser.log"
+    log_path.write_text(robotlaser_line(corridor_ranges(poses[0]), poses[0], 10.0) + " ".join(tokens) + "\n")
+    skipped = []
+    log = carmen_to_bag.parse_carmen_log(log_path, on_skip=lambda n, why: skipped.append((n, why)))
+    assert len(log.scans) == 1
+    assert skipped == [(2, "malformed ROBOTLASER1 line (205 fields, 204 expected for 180 beams (the beam count "
+                           "does not match the readings))")]
+
+
 def test_log_without_flaser_lines_is_an_error(tmp_path):
     log_path = tmp_path / "odom_only.log"
     log_path.write_text("# a CARMEN log\nODOM 0 0 0 0 0 0 0.1 host 0.1\nODOM 0.1 0 0 0 0 0 0.2 host 0.2\n")

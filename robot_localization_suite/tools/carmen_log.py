@@ -41,6 +41,7 @@ __all__ = [
 
 # Fields after the ranges: x y theta odom_x odom_y odom_theta ipc_timestamp (host and logger_timestamp optional).
 _REQUIRED_TAIL = 7
+_HOST_AND_LOGGER = 2  # a laser line ends at its timestamp or after both of these, nowhere else
 # ROBOTLASER1 laser_type start_angle fov angular_resolution max_range accuracy remission_mode n r1..rn
 #   m e1..em  laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv forward_safety side_safety
 #   turn_axis timestamp (host and logger_timestamp optional)
@@ -118,6 +119,7 @@ def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.fl
     needed = 2 + count + _REQUIRED_TAIL
     if len(tokens) < needed:
         raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
+    _check_field_count(tokens, needed, count)
     try:
         values = np.array(tokens[2:needed], dtype=np.float64)
     except ValueError:
@@ -131,6 +133,17 @@ def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.fl
     # host then logger_timestamp follow; old logs stop at the ipc_timestamp.
     logger = _number_or_nan(tokens[needed + 1]) if len(tokens) > needed + 1 else math.nan
     return ranges, pose, timestamp, logger
+
+
+def _check_field_count(tokens: list[str], needed: int, count: int) -> None:
+    """Refuse a line that neither ends at its timestamp (``needed`` fields) nor after host and logger_timestamp.
+
+    Any other count means the beam count does not match the readings, and every field after them would be
+    read from the wrong place (the stamp from odom_theta).
+    """
+    if len(tokens) not in (needed, needed + _HOST_AND_LOGGER):
+        raise ValueError(f"{len(tokens)} fields, {needed + _HOST_AND_LOGGER} expected for {count} beams "
+                         "(the beam count does not match the readings)")
 
 
 def _parse_robotlaser(
@@ -162,6 +175,7 @@ def _parse_robotlaser(
     needed = tail_at + _ROBOTLASER_TAIL
     if len(tokens) < needed:
         raise ValueError(f"truncated: {len(tokens)} fields, {needed} needed for {count} beams")
+    _check_field_count(tokens, needed, count)
     try:
         ranges = np.array(tokens[_ROBOTLASER_HEAD:remissions_at], dtype=np.float64)
         tail = np.array(tokens[tail_at:needed], dtype=np.float64)
