@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from carmen_world import corridor_poses, corridor_ranges, robotlaser_line, write_log
+from carmen_world import NO_RETURN, corridor_poses, corridor_ranges, robotlaser_line, write_log
 
 from robot_localization_suite.core.grid_map import load_map_yaml
 from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, odometry_delta, read_odometry_noise
@@ -195,6 +195,23 @@ def test_a_line_whose_beam_count_does_not_match_its_readings_is_skipped(tmp_path
     assert len(log.scans) == 1
     assert skipped == [(2, "malformed ROBOTLASER1 line (205 fields, 204 expected for 180 beams (the beam count "
                            "does not match the readings))")]
+
+
+def test_a_non_finite_reading_is_passed_on_and_the_maximum_range_comes_from_the_finite_ones(tmp_path):
+    # One inf reading made the whole log "cannot find the maximum range of the log (largest reading inf)".
+    poses = corridor_poses(6)
+    ranges = [corridor_ranges(pose) for pose in poses]
+    ranges[2][10], ranges[3][20], ranges[4][30] = np.inf, np.nan, -np.inf
+    log_path = write_log(tmp_path / "inf.log", poses, ranges=ranges)
+    report = convert_log(log_path, tmp_path / "inf")
+    assert report.max_range == pytest.approx(NO_RETURN - ConversionSettings().no_return_tolerance)
+    scans = [np.asarray(m.msg.ranges) for m in read_bag(tmp_path / "inf", ["/scan"])]
+    assert scans[2][10] == np.inf and np.isnan(scans[3][20]) and scans[4][30] == -np.inf
+    assert np.all(np.isinf(scans[2][ranges[2] == NO_RETURN]))  # the log's own no-returns still are
+    poses = corridor_poses(2)
+    write_log(log_path, poses, ranges=[np.full(181, np.inf), np.full(181, np.nan)])
+    with pytest.raises(CarmenLogError, match=r"maximum range of the log \(no finite reading\)"):
+        convert_log(log_path, tmp_path / "none")
 
 
 def test_log_without_flaser_lines_is_an_error(tmp_path):

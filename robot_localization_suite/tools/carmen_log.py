@@ -294,9 +294,15 @@ def scan_geometry(scan: CarmenScan) -> tuple[float, float]:
 
 
 def detect_max_range(scans: Iterable[CarmenScan], tolerance: float) -> float:
-    """The no-return threshold [m]: the log's largest reading minus ``tolerance``."""
-    largest = max(float(np.nanmax(s.ranges)) if s.ranges.size else -np.inf for s in scans)
-    if not np.isfinite(largest) or largest - tolerance <= 0.0:
+    """The no-return threshold [m]: the log's largest finite reading minus ``tolerance``.
+
+    NaN and +-inf readings are passed on as they are (REP 117) and play no part in it.
+    """
+    largest = max((float(s.ranges[np.isfinite(s.ranges)].max()) for s in scans if np.isfinite(s.ranges).any()),
+                  default=-np.inf)
+    if not np.isfinite(largest):
+        raise CarmenLogError("cannot find the maximum range of the log (no finite reading)")
+    if largest - tolerance <= 0.0:
         raise CarmenLogError(f"cannot find the maximum range of the log (largest reading {largest!r})")
     return largest - tolerance
 

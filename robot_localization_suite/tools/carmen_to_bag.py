@@ -466,7 +466,7 @@ def _parser() -> argparse.ArgumentParser:
                         help="scan period [s] when neither the laser nor the ODOM lines have usable timestamps "
                         "(warned on stderr)")
     parser.add_argument("--max-range", type=float, default=None,
-                        help="no-return threshold [m] (default: the log's largest reading minus the tolerance)")
+                        help="no-return threshold [m] (default: the log's largest finite reading minus the tolerance)")
     parser.add_argument("--no-return-tolerance", type=float, default=defaults.no_return_tolerance,
                         help="readings this close to the log's largest reading are no-returns [m]")
     parser.add_argument("--map-max-range", type=float, default=defaults.map_max_range,
