@@ -381,6 +381,22 @@ def test_stamps_that_step_back_are_nudged_and_counted(tmp_path):
     assert np.all(np.diff(choice.stamps) > 0)
 
 
+def test_a_stamp_far_ahead_of_both_neighbours_is_filled_in_and_its_line_named(tmp_path):
+    # One stamp of 1e9 s among 100..108 s made it the clock: every later scan was moved to 1e9 s + 1 ms steps.
+    stamps = good_stamps()
+    stamps[[0, 12]] = [5e8, 1e9]
+    choice = stamp_choice(tmp_path, stamps=stamps)
+    assert choice.source == "FLASER ipc_timestamp"
+    assert choice.stamps == pytest.approx(good_stamps())
+    assert choice.warnings == (
+        "2 of 40 scans have a FLASER ipc_timestamp more than 100 median steps ahead of the scans on both sides "
+        "(line 2: 500000000.0, line 14: 1000000000.0); filled in linearly between the scans around them",)
+    paused = good_stamps()
+    paused[20:] += 1e4  # a long pause is not an outlier: the scans after it go on from there
+    choice = stamp_choice(tmp_path, stamps=paused)
+    assert choice.warnings == () and choice.stamps == pytest.approx(paused)
+
+
 def test_unusable_ipc_stamps_fall_back_to_the_logger_timestamp(tmp_path):
     choice = stamp_choice(tmp_path, stamps=np.zeros(40), logger_stamps=good_stamps())
     assert choice.source == "FLASER logger_timestamp"

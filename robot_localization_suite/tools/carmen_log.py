@@ -57,6 +57,8 @@ MISSING_BELOW_S = 1e-6  # |stamp| below this is missing: 0, or the denormal garb
 WHOLE_SECONDS_FRACTION = 0.9  # a source is rounded when this share of its valid stamps are whole seconds
 VALID_FRACTION = 0.5  # a source is usable when at least this share of its stamps are valid ...
 STEP_BACK_FRACTION = 0.1  # ... and at most this share of the steps between them (or one step) do not increase
+OUTLIER_STEPS = 100  # a stamp more than this many median steps ahead of the stamps on both sides is wrong
+_NAMED_OUTLIERS = 3  # a warning names the lines of this many outliers
 
 SOURCE_IPC = "FLASER ipc_timestamp"  # check_stamps' default name; choose_stamps names the sources by the lines' tag
 SOURCE_ODOM = "ODOM lines"
@@ -315,8 +317,10 @@ class StampCheck:
     """What is wrong with one source of scan times (counts over its ``count`` values).
 
     A stamp is *valid* when finite and at least ``MISSING_BELOW_S``; *missing* when its
-    magnitude is below that (0 in practice). Steps are counted between consecutive valid
-    stamps; in a rounded source equal steps are the rounding's, not counted as non-increasing.
+    magnitude is below that (0 in practice); an *outlier* (indices in ``outliers``) when it is
+    more than ``OUTLIER_STEPS`` median steps ahead of the stamps on both sides (the first: of the
+    next). Steps are counted between consecutive valid stamps; in a rounded source equal steps are
+    the rounding's, not counted as non-increasing.
     """
 
     source: str
@@ -329,10 +333,11 @@ class StampCheck:
     steps: int
     largest_step_back_s: float
     span_s: float
+    outliers: tuple[int, ...] = ()
 
     @property
     def valid(self) -> int:
-        return self.count - self.missing - self.negative - self.non_finite
+        return self.count - self.missing - self.negative - self.non_finite - len(self.outliers)
 
     @property
     def rounded(self) -> bool:
@@ -354,6 +359,7 @@ class StampCheck:
             "missing": self.missing,
             "negative": self.negative,
             "non_finite": self.non_finite,
+            "outlier": len(self.outliers),
             "rounded": self.whole_seconds if self.rounded else 0,
             "non_increasing": self.non_increasing,
         }
@@ -365,6 +371,7 @@ class StampCheck:
             "missing": f"{self.missing} zero",
             "negative": f"{self.negative} negative",
             "non_finite": f"{self.non_finite} not finite",
+            "outlier": f"{len(self.outliers)} far ahead of both neighbours",
             "rounded": f"{self.whole_seconds} whole seconds",
             "non_increasing": f"{self.non_increasing} of {self.steps} steps not increasing",
         }
@@ -374,6 +381,18 @@ class StampCheck:
         return ", ".join(words[kind] for kind in problems) or "no problem"
 
 
+def _outliers(values: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Indices of the stamps more than ``OUTLIER_STEPS`` median steps ahead of both neighbours (the first: of the next)."""
+    steps = np.diff(values)
+    forward = steps[steps > 0.0]
+    if values.size < 3 or forward.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    far = OUTLIER_STEPS * float(np.median(forward))
+    ahead_of_previous = np.concatenate([[True], steps > far])
+    ahead_of_next = np.concatenate([-steps > far, [False]])
+    return np.flatnonzero(ahead_of_previous & ahead_of_next)
+
+
 def check_stamps(raw: ArrayLike, source: str = SOURCE_IPC) -> StampCheck:
     """Count the problems of one sequence of scan times [s] (see :class:`StampCheck`)."""
     raw = np.asarray(raw, dtype=np.float64).reshape(-1)
@@ -381,7 +400,9 @@ def check_stamps(raw: ArrayLike, source: str = SOURCE_IPC) -> StampCheck:
     with np.errstate(invalid="ignore"):
         missing = finite & (np.abs(raw) < MISSING_BELOW_S)
         negative = finite & (raw <= -MISSING_BELOW_S)
-    values = raw[finite & ~missing & ~negative]
+    index = np.flatnonzero(finite & ~missing & ~negative)
+    outliers = index[_outliers(raw[index])]
+    values = raw[np.setdiff1d(index, outliers)]
     whole = int(np.count_nonzero(values == np.round(values)))
     steps = np.diff(values)
     rounded = values.size >= 3 and whole >= WHOLE_SECONDS_FRACTION * values.size
@@ -397,6 +418,7 @@ def check_stamps(raw: ArrayLike, source: str = SOURCE_IPC) -> StampCheck:
         steps=int(steps.size),
         largest_step_back_s=float(-steps[back].min()) if back.any() else 0.0,
         span_s=float(values.max() - values.min()) if values.size else 0.0,
+        outliers=tuple(outliers.tolist()),
     )
 
 
@@ -413,9 +435,10 @@ def _spread_whole_seconds(values: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _repair(raw: NDArray[np.float64], check: StampCheck, min_step: float) -> NDArray[np.float64]:
-    """Increasing stamps from a usable source: de-round, fill the invalid ones, nudge steps back."""
+    """Increasing stamps from a usable source: de-round, fill the invalid ones and outliers, nudge steps back."""
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(raw) & (raw >= MISSING_BELOW_S)
+    valid[list(check.outliers)] = False
     index = np.flatnonzero(valid)
     values = raw[valid]
     if check.rounded:
@@ -457,8 +480,12 @@ class StampChoice:
     warnings: tuple[str, ...]
 
 
-def _problem_lines(check: StampCheck, *, repaired: bool, min_step: float) -> list[str]:
-    """One warning per problem kind of ``check``; ``repaired``: the source is used, say how it is fixed."""
+def _problem_lines(check: StampCheck, *, repaired: bool, min_step: float, raw: NDArray[np.float64],
+                   line_numbers: list[int]) -> list[str]:
+    """One warning per problem kind of ``check``; ``repaired``: the source is used, say how it is fixed.
+
+    ``raw``: the source's values, ``line_numbers``: each scan's line, to name the outliers.
+    """
     n = check.count
     lines = []
     fill = "; filled in linearly between the scans around them" if repaired else ""
@@ -468,6 +495,11 @@ def _problem_lines(check: StampCheck, *, repaired: bool, min_step: float) -> lis
         lines.append(f"{check.negative} of {n} scans have a negative {check.source}{fill}")
     if check.non_finite:
         lines.append(f"{check.non_finite} of {n} scans have a {check.source} that is not a finite number{fill}")
+    if check.outliers:
+        named = ", ".join(f"line {line_numbers[i]}: {float(raw[i])!r}" for i in check.outliers[:_NAMED_OUTLIERS])
+        more = ", ..." if len(check.outliers) > _NAMED_OUTLIERS else ""
+        lines.append(f"{len(check.outliers)} of {n} scans have a {check.source} more than {OUTLIER_STEPS} median "
+                     f"steps ahead of the scans on both sides ({named}{more}){fill}")
     if check.rounded:
         how = "; scans sharing a second are spread evenly over it" if repaired else ""
         lines.append(f"{check.whole_seconds} of {check.valid} {check.source} values are whole seconds "
@@ -487,12 +519,13 @@ def choose_stamps(
     ``message``: the lines' tag (``FLASER`` or ``ROBOTLASER1``), which the warnings name.
     """
     source_ipc, source_logger = f"{message} ipc_timestamp", f"{message} logger_timestamp"
+    line_numbers = [s.line_number for s in scans]
     ipc = np.array([s.timestamp for s in scans], dtype=np.float64)
     check = check_stamps(ipc, source_ipc)
     if check.usable:
-        return StampChoice(_repair(ipc, check, min_step), source_ipc,
-                           tuple(_problem_lines(check, repaired=True, min_step=min_step)))
-    warnings = _problem_lines(check, repaired=False, min_step=min_step)
+        return StampChoice(_repair(ipc, check, min_step), source_ipc, tuple(
+            _problem_lines(check, repaired=True, min_step=min_step, raw=ipc, line_numbers=line_numbers)))
+    warnings = _problem_lines(check, repaired=False, min_step=min_step, raw=ipc, line_numbers=line_numbers)
     if not check.problems():
         warnings.append(f"{check.source}: {check.describe()}")
     alternatives = [
@@ -510,7 +543,7 @@ def choose_stamps(
         if other.usable:
             what = " (the last ODOM line before each scan)" if source == SOURCE_ODOM else ""
             warnings.append(f"{check.source} not usable: using the times of the {source}{what} instead")
-            warnings.extend(_problem_lines(other, repaired=True, min_step=min_step))
+            warnings.extend(_problem_lines(other, repaired=True, min_step=min_step, raw=raw, line_numbers=line_numbers))
             return StampChoice(_repair(raw, other, min_step), source, tuple(warnings))
         warnings.append(f"{source}: not usable either ({other.describe()})")
     warnings.append(f"no usable timestamps: assuming one scan every {period:g} s ({SOURCE_PERIOD})")
