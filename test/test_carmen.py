@@ -14,7 +14,7 @@ from robot_localization_suite.core.grid_map import load_map_yaml
 from robot_localization_suite.core.motion import ODOMETRY_NOISE_KEY, odometry_delta, read_odometry_noise
 from robot_localization_suite.ros import conversions
 from robot_localization_suite.ros.bag import bag_custom_data, bag_topics, read_bag
-from robot_localization_suite.tools import carmen_log, carmen_to_bag
+from robot_localization_suite.tools import carmen_cv, carmen_log, carmen_to_bag
 from robot_localization_suite.tools.carmen_to_bag import CarmenLogError, ConversionSettings, convert_log
 
 INTEL_LOG = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
@@ -395,6 +395,37 @@ def test_a_stamp_far_ahead_of_both_neighbours_is_filled_in_and_its_line_named(tm
     paused[20:] += 1e4  # a long pause is not an outlier: the scans after it go on from there
     choice = stamp_choice(tmp_path, stamps=paused)
     assert choice.warnings == () and choice.stamps == pytest.approx(paused)
+
+
+@pytest.mark.parametrize(("stamps", "period", "bad", "first"), [
+    (1e11 + 0.25 * np.arange(6), 1.0, 6, "line 2: 100000000000.0 s"),  # past 2038: no int32 seconds
+    (1e-6 * np.array([2, 3, 5, 6, 7, 8]), 1.0, 2, "line 2: 2e-06 s"),  # /map would be logged before time 0
+    (np.zeros(6), 1e9, 4, "line 4: 3000000000.0 s"),  # --period from the API, which argparse does not guard
+])
+def test_stamps_a_bag_cannot_hold_are_refused_before_anything_is_written(tmp_path, capsys, stamps, period, bad, first):
+    # They ended in an OverflowError half-way through writing, leaving an .mcap without metadata.yaml.
+    log_path = write_log(tmp_path / "far.log", corridor_poses(6), stamps=stamps)
+    with pytest.raises(CarmenLogError, match=rf"^{bad} of 6 scan stamps \(.*\) lie outside the 4e-06 to 2147483647 s "
+                                             rf"a bag holds, the first at {first}$"):
+        convert_log(log_path, tmp_path / "far", settings=ConversionSettings(period=period))
+    assert not (tmp_path / "far").exists()
+    with pytest.raises(CarmenLogError, match="lie outside"):
+        carmen_cv.split_log(log_path, tmp_path / "blocks", 2, settings=ConversionSettings(period=period))
+    assert not (tmp_path / "blocks").exists()
+    capsys.readouterr()
+    assert carmen_to_bag.main([str(log_path), str(tmp_path / "far"), "--period", str(period)]) == 1
+    assert capsys.readouterr().err.splitlines()[-1].startswith(f"carmen_to_bag: error: {bad} of 6 scan stamps")
+
+
+@pytest.mark.parametrize(("option", "value"), [("--period", "1e-9"), ("--period", "nan"), ("--period", "3e9"),
+                                               ("--resolution", "1e-7"), ("--resolution", "inf"), ("--resolution", "x")])
+def test_a_period_or_resolution_out_of_range_is_refused_naming_it(tmp_path, capsys, option, value):
+    log_path = write_log(tmp_path / "ok.log", corridor_poses(6))
+    with pytest.raises(SystemExit) as exit_info:
+        carmen_to_bag.main([str(log_path), str(tmp_path / "out"), option, value])
+    assert exit_info.value.code == 2
+    assert f"argument {option}: {value!r} is not a number from " in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_unusable_ipc_stamps_fall_back_to_the_logger_timestamp(tmp_path):

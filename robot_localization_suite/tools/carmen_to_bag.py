@@ -27,9 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..core.errors import LocalizationSuiteError
-from ..core.grid_map import GridMap
+from ..core.grid_map import MIN_RESOLUTION_M, GridMap
 from ..core.motion import ODOMETRY_NOISE_KEY, OdometryMotionModel, declare_odometry_noise, odometry_delta
 from .carmen_log import (
+    MIN_STAMP_STEP_S,
     CarmenLog,
     CarmenLogError,
     CarmenScan,
@@ -70,6 +71,12 @@ LOG_ODDS_MISS = math.log(0.4 / 0.6)
 LOG_ODDS_MIN, LOG_ODDS_MAX = -2.0, 3.5
 
 DEFAULT_ALPHAS = (1.2e-3, 1e-4, 4e-4, 1e-4)  # alpha1..alpha4, see the module docstring
+# A bag holds scan stamps from 4 us (/map, /odom and /ground_truth are logged up to 4 us before their scan,
+# and log times are unsigned) to the last whole second of a ROS time's int32 seconds.
+_MICROSECOND_NS = 1000
+MIN_STAMP_S = 4 * _MICROSECOND_NS * 1e-9
+MAX_STAMP_S = 2.0**31 - 1.0
+MAX_RESOLUTION_M = 100.0  # --resolution: cells coarser than this hold no room
 
 def simulate_odometry(
     poses: NDArray[np.float64], model: OdometryMotionModel, rng: np.random.Generator
@@ -250,6 +257,16 @@ def _report_warning_to_stderr(message: str) -> None:
     print(f"carmen_to_bag: warning: timestamps: {message}", file=sys.stderr)
 
 
+def _check_stamp_range(stamps: NDArray[np.float64], scans: list[CarmenScan], source: str) -> None:
+    """Refuse stamps a bag cannot hold (outside ``[MIN_STAMP_S, MAX_STAMP_S]``), naming the first one's line."""
+    bad = np.flatnonzero(~((stamps >= MIN_STAMP_S) & (stamps <= MAX_STAMP_S)))
+    if bad.size:
+        first = int(bad[0])
+        raise CarmenLogError(
+            f"{bad.size} of {stamps.size} scan stamps ({source}) lie outside the {MIN_STAMP_S:g} to "
+            f"{MAX_STAMP_S:.0f} s a bag holds, the first at line {scans[first].line_number}: {float(stamps[first])!r} s")
+
+
 def prepare_log(
     log_path: str | os.PathLike[str],
     settings: ConversionSettings | None = None,
@@ -267,6 +284,7 @@ def prepare_log(
     if on_warning is not None:
         for message in choice.warnings:
             on_warning(message)
+    _check_stamp_range(choice.stamps, scans, choice.source)
     rng = np.random.default_rng(settings.seed)
     model = OdometryMotionModel(*settings.alphas)
     odom = simulate_odometry(poses, model, rng)
@@ -308,7 +326,7 @@ def write_bag(
 
     chosen = range(len(prepared.scans)) if scans is None else scans
     stamps, odom, poses, max_range = prepared.stamps, prepared.odom, prepared.poses, prepared.max_range
-    microsecond = 1000
+    microsecond = _MICROSECOND_NS
     out_dir = Path(out_dir)
     declared = {ODOMETRY_NOISE_KEY: declare_odometry_noise(prepared.odometry_model)}
     with BagWriter(out_dir, compress=compress, custom_data=declared) as writer:
@@ -429,6 +447,21 @@ def convert_log(
     )
 
 
+def _number_from(low: float, high: float) -> Callable[[str], float]:
+    """An argparse type: a number from ``low`` to ``high``, else an error naming the value."""
+
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number from {low:.12g} to {high:.12g}")
+        return value
+
+    return number
+
+
 def _parser() -> argparse.ArgumentParser:
     from .carmen_cv import MIN_BLOCK_SCANS, NEAR_PATH_M
 
@@ -461,8 +494,9 @@ def _parser() -> argparse.ArgumentParser:
         parser.add_argument(f"--alpha{index}", type=float, default=default,
                             help=f"odometry noise, {meaning} (variance scale, Thrun table 5.6 / nav2_amcl)")
     parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the odometry noise")
-    parser.add_argument("--resolution", type=float, default=defaults.resolution, help="map cell size [m]")
-    parser.add_argument("--period", type=float, default=defaults.period,
+    parser.add_argument("--resolution", type=_number_from(MIN_RESOLUTION_M, MAX_RESOLUTION_M),
+                        default=defaults.resolution, help="map cell size [m]")
+    parser.add_argument("--period", type=_number_from(MIN_STAMP_STEP_S, MAX_STAMP_S), default=defaults.period,
                         help="scan period [s] when neither the laser nor the ODOM lines have usable timestamps "
                         "(warned on stderr)")
     parser.add_argument("--max-range", type=float, default=None,
