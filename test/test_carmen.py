@@ -214,6 +214,27 @@ def test_a_non_finite_reading_is_passed_on_and_the_maximum_range_comes_from_the_
         convert_log(log_path, tmp_path / "none")
 
 
+def test_a_pose_far_off_is_skipped_and_a_map_too_big_to_build_is_refused(tmp_path, capsys):
+    # x = 1e9 in one line made the map 20,000,001,555 x 985 cells: "Unable to allocate 71.7 TiB".
+    poses = corridor_poses(6)
+    far = poses.copy()
+    far[3, 0] = 1e9
+    log_path = write_log(tmp_path / "far.log", far, ranges=[corridor_ranges(pose) for pose in poses])
+    report = convert_log(log_path, tmp_path / "far")
+    assert report.scans == 5 and report.skipped_lines == [(5, "pose [1000000000.0, 0.0, 0.0] is farther than "
+                                                              "1e+06 m from the origin")]
+    assert "line 5: malformed FLASER line (pose [1000000000.0, 0.0, 0.0] is farther than" in capsys.readouterr().err
+    # Within 1e6 m a map can still be far too big to allocate: refused naming its size before anything is written.
+    spread = np.array([[0.0, 0.0, 0.0], [9e5, 9e5, 0.0]])
+    with pytest.raises(ValueError, match=r"^the map would be 18000041 x 18000041 cells \(900002 m x 900002 m at "
+                                         r"0.05 m\), more than 400000000$"):
+        carmen_to_bag.build_occupancy_map(spread, [np.zeros(0)] * 2, [np.zeros(0)] * 2, 80.0)
+    write_log(log_path, spread, ranges=[np.full(181, 1.0)] * 2)
+    assert carmen_to_bag.main([str(log_path), str(tmp_path / "spread")]) == 1
+    assert capsys.readouterr().err.splitlines()[-1].startswith("carmen_to_bag: error: the map would be 18000041 x ")
+    assert not (tmp_path / "spread").exists()
+
+
 def test_log_without_flaser_lines_is_an_error(tmp_path):
     log_path = tmp_path / "odom_only.log"
     log_path.write_text("# a CARMEN log\nODOM 0 0 0 0 0 0 0.1 host 0.1\nODOM 0.1 0 0 0 0 0 0.2 host 0.2\n")

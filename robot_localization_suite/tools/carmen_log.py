@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..core.errors import LocalizationSuiteError
+from ..core.grid_map import MAX_COORDINATE_M
 
 __all__ = [
     "CarmenLogError",
@@ -129,12 +130,19 @@ def _parse_flaser(tokens: list[str]) -> tuple[NDArray[np.float64], NDArray[np.fl
         raise ValueError(f"field {bad!r} is not a number") from None
     ranges = values[:count]
     pose = values[count : count + 3]
-    if not np.all(np.isfinite(pose)):
-        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    _check_pose(pose)
     timestamp = float(values[count + 6])
     # host then logger_timestamp follow; old logs stop at the ipc_timestamp.
     logger = _number_or_nan(tokens[needed + 1]) if len(tokens) > needed + 1 else math.nan
     return ranges, pose, timestamp, logger
+
+
+def _check_pose(pose: NDArray[np.float64]) -> None:
+    """Refuse a pose that is not finite or lies farther than ``MAX_COORDINATE_M`` from the origin."""
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    if np.any(np.abs(pose[:2]) > MAX_COORDINATE_M):
+        raise ValueError(f"pose {pose.tolist()!r} is farther than {MAX_COORDINATE_M:g} m from the origin")
 
 
 def _check_field_count(tokens: list[str], needed: int, count: int) -> None:
@@ -186,8 +194,7 @@ def _parse_robotlaser(
         bad = next(t for t in fields if not _is_number(t))
         raise ValueError(f"field {bad!r} is not a number") from None
     pose = tail[:3]
-    if not np.all(np.isfinite(pose)):
-        raise ValueError(f"pose {pose.tolist()!r} is not finite")
+    _check_pose(pose)
     # The stated resolution; a log that leaves it 0 spreads the field of view over the gaps.
     if resolution > 0.0:
         increment = resolution

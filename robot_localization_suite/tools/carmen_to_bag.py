@@ -77,6 +77,8 @@ _MICROSECOND_NS = 1000
 MIN_STAMP_S = 4 * _MICROSECOND_NS * 1e-9
 MAX_STAMP_S = 2.0**31 - 1.0
 MAX_RESOLUTION_M = 100.0  # --resolution: cells coarser than this hold no room
+# A log whose map would have more cells is refused: 1 km^2 at 5 cm (14 times the Freiburg campus), ~5 GB to build.
+MAX_MAP_CELLS = 400_000_000
 
 def simulate_odometry(
     poses: NDArray[np.float64], model: OdometryMotionModel, rng: np.random.Generator
@@ -158,7 +160,11 @@ def build_occupancy_map(
     extent_points = np.vstack([poses[:, :2], end_xy[endpoint_hit]])
     low = np.floor((extent_points.min(axis=0) - margin) / resolution) * resolution
     high = np.ceil((extent_points.max(axis=0) + margin) / resolution) * resolution
-    width, height = (np.round((high - low) / resolution).astype(np.int64) + 1).tolist()
+    cells = np.round((high - low) / resolution) + 1
+    if float(np.prod(cells)) > MAX_MAP_CELLS:
+        raise ValueError(f"the map would be {cells[0]:.0f} x {cells[1]:.0f} cells ({high[0] - low[0]:.6g} m x "
+                         f"{high[1] - low[1]:.6g} m at {resolution!r} m), more than {MAX_MAP_CELLS}")
+    width, height = cells.astype(np.int64).tolist()
 
     def to_cells(xy: NDArray[np.float64]) -> NDArray[np.int64]:
         return np.floor((xy - low) / resolution).astype(np.int64)
