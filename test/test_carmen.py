@@ -235,6 +235,34 @@ def test_a_pose_far_off_is_skipped_and_a_map_too_big_to_build_is_refused(tmp_pat
     assert not (tmp_path / "spread").exists()
 
 
+def test_outputs_that_cannot_be_written_are_refused_before_converting(tmp_path, capsys):
+    # Each ended in a traceback (FileExistsError, IsADirectoryError), some after the bag had been written.
+    log_path = write_log(tmp_path / "ok.log", corridor_poses(6))
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "image.pgm").mkdir()
+    cases = [
+        ([str(tmp_path / "afile" / "bag")], f"OUT_DIR: {str(tmp_path / 'afile' / 'bag')!r} cannot be created: "
+                                            f"{str(tmp_path / 'afile')!r} is not a directory"),
+        ([str(tmp_path / "afile"), "--blocks", "2"], f"OUT_DIR: {str(tmp_path / 'afile')!r} is not a directory"),
+        ([str(tmp_path / "bag"), "--map-out", str(tmp_path / "afile" / "deeper" / "map.yaml")],
+         f"--map-out: {str(tmp_path / 'afile' / 'deeper' / 'map.yaml')!r} cannot be created: "
+         f"{str(tmp_path / 'afile')!r} is not a directory"),
+        ([str(tmp_path / "bag"), "--map-out", str(tmp_path / "adir")], f"--map-out: {str(tmp_path / 'adir')!r} is a "
+                                                                       "directory"),
+        ([str(tmp_path / "bag"), "--map-out", str(tmp_path / "image.yaml")],
+         f"--map-out: {str(tmp_path / 'image.pgm')!r} is a directory"),
+    ]
+    for args, message in cases:
+        with pytest.raises(SystemExit) as exit_info:
+            carmen_to_bag.main([str(log_path), *args])
+        assert exit_info.value.code == 2
+        assert capsys.readouterr().err.splitlines()[-1] == f"carmen_to_bag: error: {message}"
+        assert not (tmp_path / "bag").exists()
+    assert carmen_to_bag.main([str(log_path), str(tmp_path / "new" / "bag"), "--map-out",
+                               str(tmp_path / "new" / "maps" / "map.yaml")]) == 0  # missing parents are made
+
+
 def test_log_without_flaser_lines_is_an_error(tmp_path):
     log_path = tmp_path / "odom_only.log"
     log_path.write_text("# a CARMEN log\nODOM 0 0 0 0 0 0 0.1 host 0.1\nODOM 0.1 0 0 0 0 0 0.2 host 0.2\n")

@@ -453,6 +453,24 @@ def convert_log(
     )
 
 
+def _output_problem(path: Path, *, directory: bool | None) -> str | None:
+    """Why ``path`` cannot be written (None if it can): it lies under a file, or it is a file where a directory
+    goes (``directory`` True) or a directory where a file goes (False); None: either will do (--overwrite).
+    """
+    if path.exists():
+        if directory is True and not path.is_dir():
+            return f"{str(path)!r} is not a directory"
+        if directory is False and path.is_dir():
+            return f"{str(path)!r} is a directory"
+        return None
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{str(path)!r} cannot be created: {str(parent)!r} is not a directory"
+    return None
+
+
 def _number_from(low: float, high: float) -> Callable[[str], float]:
     """An argparse type: a number from ``low`` to ``high``, else an error naming the value."""
 
@@ -520,6 +538,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.blocks is not None and args.map_out is not None:
         parser.error("--map-out does not go with --blocks (the whole-log map is OUT_DIR/<name>_full.yaml)")
+    outputs = [("OUT_DIR", args.out_dir, True if args.blocks is not None else None)]
+    if args.map_out is not None:
+        outputs += [("--map-out", args.map_out, False), ("--map-out", args.map_out.with_suffix(".pgm"), False)]
+    for name, path, directory in outputs:
+        problem = _output_problem(path, directory=directory)
+        if problem is not None:
+            parser.error(f"{name}: {problem}")
     try:
         settings = ConversionSettings(
             alphas=(args.alpha1, args.alpha2, args.alpha3, args.alpha4),
