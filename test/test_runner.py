@@ -184,12 +184,22 @@ def test_parameter_values_parse_back_to_their_type(value, text: str) -> None:
         ("- {executable: scan_sim, nmae: x}", r"unknown field\(s\) \['nmae'\]"),
         ("speed: 2\nnodes: [{executable: scan_sim}]", r"unknown field\(s\) \['speed'\]"),
         ("domain_id: 500\nnodes: [{executable: scan_sim}]", "domain_id .* got 500"),
+        ("- {executable: scan_sim, parameters: [a, b]}", r"bad\.yaml': node #0: parameters must be a mapping, got \['a', 'b'\]"),
+        ("- {executable: scan_sim, remaps: 'scan:front'}", r"node #0: remaps must be a mapping, got 'scan:front'"),
+        ("- {executable: scan_sim, arguments: --foo}", r"node #0: arguments must be a list, got '--foo'"),
     ],
 )
 def test_runfile_errors_name_the_field(tmp_path: Path, content: str, message: str) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(content)
     with pytest.raises(RunError, match=message):
+        load_runfile(path)
+
+
+def test_a_binary_runfile_is_refused_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / "binary.yaml"
+    path.write_bytes(bytes([0xFC, 0x4B, 0x70, 0x39, 0xDF]))
+    with pytest.raises(RunError, match=r"binary\.yaml' is not valid YAML: 'utf-8' codec can't decode byte 0xfc"):
         load_runfile(path)
 
 

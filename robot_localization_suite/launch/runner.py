@@ -214,6 +214,9 @@ def node_spec_from_dict(entry: Any, index: int) -> NodeSpec:
         raise RunError(f"node #{index}: unknown field(s) {sorted(unknown)!r}; known: {sorted(_NODE_FIELDS)}")
     if "executable" not in entry:
         raise RunError(f"node #{index} has no field 'executable'")
+    for key, kind, what in (("parameters", dict, "a mapping"), ("remaps", dict, "a mapping"), ("arguments", list, "a list")):
+        if entry.get(key) is not None and not isinstance(entry[key], kind):  # before dict() or list() converts it
+            raise RunError(f"node #{index}: {key} must be {what}, got {entry[key]!r}")
     values = {key: substitute(value) for key, value in entry.items()}
     values.setdefault("name", values["executable"])
     values["parameters"] = {k: substitute(v) for k, v in (values.get("parameters") or {}).items()}
@@ -236,7 +239,7 @@ def load_runfile(path: str | os.PathLike[str]) -> Runfile:
         raise RunError(f"runfile {str(path)!r} does not exist")
     try:
         content = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise RunError(f"runfile {str(path)!r} is not valid YAML: {exc}") from exc
     domain_id, autostart = None, True
     if isinstance(content, dict):
@@ -253,7 +256,11 @@ def load_runfile(path: str | os.PathLike[str]) -> Runfile:
         content = content.get("nodes")
     if not isinstance(content, list) or not content:
         raise RunError(f"runfile {str(path)!r} must list at least one node, got {content!r}")
-    return Runfile([node_spec_from_dict(entry, i) for i, entry in enumerate(content)], domain_id, autostart)
+    try:
+        nodes = [node_spec_from_dict(entry, i) for i, entry in enumerate(content)]
+    except RunError as exc:
+        raise RunError(f"runfile {str(path)!r}: {exc}") from exc
+    return Runfile(nodes, domain_id, autostart)
 
 
 _OUTPUT_LOCK = threading.Lock()
