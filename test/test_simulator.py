@@ -318,6 +318,14 @@ def test_bad_scenarios_are_refused_naming_the_value(room_scenario, changes: dict
         room_scenario(data)
 
 
+def test_a_scenario_without_motion_needs_a_duration(room_scenario) -> None:
+    # Without either it never ends: scan_sim --record ran "of inf s simulated" until killed.
+    with pytest.raises(ScenarioError, match=r"scenario has no 'motion' \(waypoints or segments\) and no 'duration'"):
+        room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0]})
+    standing = room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0], "duration": 2.0})
+    assert standing.end_time == 2.0 and standing.step_count == 21
+
+
 def test_missing_map_is_a_scenario_error(tmp_path: Path) -> None:
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump({"map": "nowhere.yaml", "start": [1, 1, 0]}))

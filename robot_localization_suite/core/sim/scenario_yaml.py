@@ -1,6 +1,8 @@
 """Scenarios from YAML: :func:`load_scenario` and :func:`scenario_from_dict`, every field checked and named.
 
 The map path is relative to the scenario file. Layout: docs/simulator.md.
+A scenario needs ``motion`` or ``duration``: without motion the robot stands at its start (live
+``scan_sim``: drives by ``cmd_vel``) for ``duration`` seconds; with neither it would never end, and is refused.
 """
 
 from __future__ import annotations
@@ -110,7 +112,10 @@ def _parse_waypoint(index: int, raw: Any) -> Waypoint:
 
 
 def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str] = ".") -> Scenario:
-    """Build a :class:`Scenario` from parsed YAML; the map path is relative to ``base_dir``."""
+    """Build a :class:`Scenario` from parsed YAML; the map path is relative to ``base_dir``.
+
+    Without ``motion`` a ``duration`` is required (the module docstring says why).
+    """
     data = _mapping("scenario", data, _TOP_KEYS)
     if "map" not in data:
         raise ScenarioError("scenario has no 'map' (path of a nav2 map_server YAML)")
@@ -212,7 +217,7 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
             extra=extra,
         )
     duration = data.get("duration")
-    return Scenario(
+    scenario = Scenario(
         grid_map=grid_map,
         start=pose_value("start", data["start"]),
         motion=motion,
@@ -229,6 +234,9 @@ def scenario_from_dict(data: Mapping[str, Any], base_dir: str | os.PathLike[str]
         map_changes=tuple(map_changes),
         reinitializations=tuple(reinitializations),
     )
+    if scenario.motion is None and scenario.duration is None:
+        raise ScenarioError("scenario has no 'motion' (waypoints or segments) and no 'duration': it would never end")
+    return scenario
 
 
 def load_scenario(path: str | os.PathLike[str]) -> Scenario:
