@@ -294,6 +294,8 @@ def test_start_pose_in_an_obstacle_is_refused_with_the_pose(room_scenario) -> No
         ({"laser": {"range_noise_model": "cauchy"}}, r"range_noise_model must be one of .* got 'cauchy'"),
         ({"laser": {"outlier_prob": 1.5}}, r"laser\.outlier_prob must be within \[0, 1\], got 1\.5"),
         ({"laser": {"beams": 360.5}}, r"laser\.beams must be an integer, got 360\.5"),
+        ({"laser": {"beams": 10**9}}, r"laser\.beams must be an integer within \[2, 100000\], got 1000000000"),
+        ({"laser": {"rate_hz": 1e9}}, r"laser\.rate_hz must be within \(0, 1000\] Hz, got 1000000000\.0"),
         ({"odometry": {"alpha3": -1}}, r"odometry\.alpha3 must be >= 0, got -1"),
         ({"motion": {"waypoints": [[2.0, 1.0], [9.0, 1.0]]}}, r"motion\.waypoints\[1\] \[9\.0, 1\.0\] is off the map"),
         ({"motion": {"waypoints": [[2.0, 1.0]], "segments": [{"v": 1, "w": 0, "duration": 1}]}}, "exactly one"),

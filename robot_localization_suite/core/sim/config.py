@@ -35,6 +35,8 @@ __all__ = [
     "ODOMETRY_MODELS",
     "CAMERA_ENCODINGS",
     "REINITIALIZE_TOPIC",
+    "MAX_BEAMS",
+    "MAX_RATE_HZ",
     "finite_value",
     "non_negative_value",
     "positive_value",
@@ -49,6 +51,9 @@ ODOMETRY_MODELS = ("alphas", "bounded")
 CAMERA_ENCODINGS = ("mono8", "rgb8")
 # Where scan_sim publishes (live) and records (bag) a Reinitialization: std_msgs/Header stamped at the request.
 REINITIALIZE_TOPIC = "operator/reinitialize_global_localization"
+# Most beams a scan and most scans a second: beyond them a scan or the trajectory does not fit in memory.
+MAX_BEAMS = 100_000
+MAX_RATE_HZ = 1000.0
 
 
 
@@ -112,13 +117,13 @@ class LaserConfig:
     (manufacturers quote 1-3 cm), 1.5 % outliers, 0.5 % dropouts.
 
     Attributes:
-        beams: number of beams.
+        beams: number of beams, 2..``MAX_BEAMS``.
         fov_deg: field of view [deg], 90..360. At 360 the beams are ``2 pi / beams``
             apart starting at ``-pi`` (no duplicate beam); below 360 they span
             ``[-fov/2, +fov/2]`` end to end.
         range_min, range_max: valid interval [m]; readings at or beyond ``range_max``
             are published as ``+inf``, hits closer than ``range_min`` as ``-inf`` (REP 117).
-        rate_hz: scans per second; the simulator steps at this rate.
+        rate_hz: scans per second, up to ``MAX_RATE_HZ``; the simulator steps at this rate.
         range_noise_std: standard deviation of Gaussian range noise [m].
         range_noise_model: ``gaussian`` or ``uniform`` (bounded: ``+-range_noise_bound``,
             what interval methods assume).
@@ -147,8 +152,8 @@ class LaserConfig:
     def __post_init__(self) -> None:
         if not isinstance(self.upside_down, bool):
             raise ScenarioError(f"laser.upside_down must be true or false, got {self.upside_down!r}")
-        if isinstance(self.beams, bool) or not isinstance(self.beams, (int, np.integer)) or self.beams < 2:
-            raise ScenarioError(f"laser.beams must be an integer >= 2, got {self.beams!r}")
+        if isinstance(self.beams, bool) or not isinstance(self.beams, (int, np.integer)) or not 2 <= self.beams <= MAX_BEAMS:
+            raise ScenarioError(f"laser.beams must be an integer within [2, {MAX_BEAMS}], got {self.beams!r}")
         fov = finite_value("laser.fov_deg", self.fov_deg)
         if not 90.0 <= fov <= 360.0:
             raise ScenarioError(f"laser.fov_deg must be within [90, 360], got {self.fov_deg!r}")
@@ -156,7 +161,8 @@ class LaserConfig:
         range_max = positive_value("laser.range_max", self.range_max)
         if range_min >= range_max:
             raise ScenarioError(f"laser.range_min {self.range_min!r} must be below laser.range_max {self.range_max!r}")
-        positive_value("laser.rate_hz", self.rate_hz)
+        if positive_value("laser.rate_hz", self.rate_hz) > MAX_RATE_HZ:
+            raise ScenarioError(f"laser.rate_hz must be within (0, {MAX_RATE_HZ:g}] Hz, got {self.rate_hz!r}")
         non_negative_value("laser.range_noise_std", self.range_noise_std)
         non_negative_value("laser.range_noise_bound", self.range_noise_bound)
         if self.range_noise_model not in RANGE_NOISE_MODELS:

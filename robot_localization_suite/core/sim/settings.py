@@ -13,7 +13,7 @@ from typing import Any
 from ..errors import ScenarioError
 from ..grid_map import load_map_yaml
 from ..settings import Settings, setting
-from .config import ODOMETRY_MODELS, RANGE_NOISE_MODELS, LaserConfig, OdometryConfig
+from .config import MAX_BEAMS, MAX_RATE_HZ, ODOMETRY_MODELS, RANGE_NOISE_MODELS, LaserConfig, OdometryConfig
 from .scenario import Scenario
 from .scenario_yaml import load_scenario
 
@@ -61,11 +61,11 @@ class ScanSimSettings(Settings):
     max_angular: float = setting(2.0, "cmd_vel mode: |angular.z| limit", unit="rad/s", low=0.0, high=20.0)
     cmd_vel_timeout: float = setting(0.5, "cmd_vel mode: stop after this long without a command", unit="s",
                                      low=0.0, high=60.0)
-    beams: int = setting(-1, f"laser beams; {_KEEP}", low=-1, high=100_000)
+    beams: int = setting(-1, f"laser beams; {_KEEP}", low=-1, high=MAX_BEAMS)
     fov_deg: float = setting(-1.0, f"laser field of view, 90..360; {_KEEP}", unit="deg", low=-1.0, high=360.0)
     range_min: float = setting(-1.0, f"laser minimum range; {_KEEP}", unit="m", low=-1.0, high=1000.0)
     range_max: float = setting(-1.0, f"laser maximum range; {_KEEP}", unit="m", low=-1.0, high=1000.0)
-    rate_hz: float = setting(-1.0, f"scans (and steps) per second; {_KEEP}", unit="Hz", low=-1.0, high=1000.0)
+    rate_hz: float = setting(-1.0, f"scans (and steps) per second; {_KEEP}", unit="Hz", low=-1.0, high=MAX_RATE_HZ)
     range_noise_model: str = setting("", f"gaussian or uniform; {_KEEP}", choices=("", *RANGE_NOISE_MODELS))
     range_noise_std: float = setting(-1.0, f"Gaussian range noise std; {_KEEP}", unit="m", low=-1.0, high=10.0)
     range_noise_bound: float = setting(-1.0, f"uniform range noise bound; {_KEEP}", unit="m", low=-1.0, high=10.0)
