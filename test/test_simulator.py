@@ -296,6 +296,17 @@ def test_start_pose_in_an_obstacle_is_refused_with_the_pose(room_scenario) -> No
         ({"laser": {"beams": 360.5}}, r"laser\.beams must be an integer, got 360\.5"),
         ({"laser": {"beams": 10**9}}, r"laser\.beams must be an integer within \[2, 100000\], got 1000000000"),
         ({"laser": {"rate_hz": 1e9}}, r"laser\.rate_hz must be within \(0, 1000\] Hz, got 1000000000\.0"),
+        ({"duration": 1e9}, r"duration 1000000000\.0 s is longer than 86400 s, the most a scenario may last"),
+        ({"duration": 3600, "laser": {"rate_hz": 1000}}, r"duration 3600\.0 s is longer than 999\.999 s, .* 1000000 laser steps"),
+        (
+            {"motion": {"segments": [{"v": 0.0, "w": 0.0, "duration": 1e6}]}},
+            r"motion\.segments last 1000000\.0 s, longer than 86400 s",
+        ),
+        ({"motion": {"linear_speed": 1e-9, "waypoints": [[2.0, 1.0]]}}, r"motion\.linear_speed must be >= 0\.01, got 1e-09"),
+        (
+            {"motion": {"waypoints": [[2.0, 1.0]]}, "kidnappings": [{"time": 1e9, "pose": [2.0, 1.0, 0.0]}]},
+            r"kidnappings\[0\]\.time 1000000000\.0 s is after 86400 s, the most a scenario may last",
+        ),
         ({"odometry": {"alpha3": -1}}, r"odometry\.alpha3 must be >= 0, got -1"),
         ({"motion": {"waypoints": [[2.0, 1.0], [9.0, 1.0]]}}, r"motion\.waypoints\[1\] \[9\.0, 1\.0\] is off the map"),
         ({"motion": {"waypoints": [[2.0, 1.0]], "segments": [{"v": 1, "w": 0, "duration": 1}]}}, "exactly one"),
@@ -326,6 +337,13 @@ def test_a_scenario_without_motion_needs_a_duration(room_scenario) -> None:
         room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0]})
     standing = room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0], "duration": 2.0})
     assert standing.end_time == 2.0 and standing.step_count == 21
+
+
+def test_a_route_longer_than_a_scenario_may_last_is_refused(room_scenario, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("robot_localization_suite.core.sim.scenario.MAX_DURATION_S", 3.0)
+    with pytest.raises(ScenarioError, match=r"motion\.waypoints do not end within 3 s, the most a scenario may last"):
+        room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0], "motion": {"waypoints": [[2.0, 1.0], {"wait": 5.0}]}})
+    assert room_scenario({"map": "room.yaml", "start": [1.0, 1.0, 0.0], "motion": {"waypoints": [[2.0, 1.0]]}})
 
 
 def test_missing_map_is_a_scenario_error(tmp_path: Path) -> None:

@@ -37,7 +37,14 @@ from .config import (
 )
 from .trajectory import IntegratedMotion, Trajectory, integrate_motion
 
-__all__ = ["Scenario"]
+__all__ = ["Scenario", "MAX_DURATION_S", "MAX_STEPS", "MIN_SPEED"]
+
+# The true trajectory is integrated at 10 ms sub-steps and kept in memory (about 30 kB a simulated second):
+# a scenario lasts at most a day and a million laser steps, and a route is driven at MIN_SPEED m/s or rad/s
+# at least (slower, a few metres take days).
+MAX_DURATION_S = 86_400.0
+MAX_STEPS = 1_000_000
+MIN_SPEED = 0.01
 
 
 # -- the scenario -----------------------------------------------------------------------
@@ -74,6 +81,7 @@ class Scenario:
                 raise ScenarioError(f"duration must be > 0, got {self.duration!r}")
         if self.motion is not None:
             self._check_motion(self.motion)
+        self._check_length()
         self._check_events()
         self.check_pose(self.start, "start pose", self.map_at(0.0))
         for index, kidnap in enumerate(self.kidnappings):
@@ -172,8 +180,9 @@ class Scenario:
     def _check_motion(self, motion: MotionPlan) -> None:
         if bool(motion.waypoints) == bool(motion.segments):
             raise ScenarioError("motion needs either waypoints or segments (exactly one of them)")
-        positive_value("motion.linear_speed", motion.linear_speed)
-        positive_value("motion.angular_speed", motion.angular_speed)
+        for name in ("linear_speed", "angular_speed"):
+            if positive_value(f"motion.{name}", getattr(motion, name)) < MIN_SPEED:
+                raise ScenarioError(f"motion.{name} must be >= {MIN_SPEED:g}, got {getattr(motion, name)!r}")
         x0, x1, y0, y1 = self.grid_map.extent
         for index, waypoint in enumerate(motion.waypoints):
             if waypoint.is_wait:
@@ -190,6 +199,33 @@ class Scenario:
             finite_value(f"motion.segments[{index}].v", segment.v)
             finite_value(f"motion.segments[{index}].w", segment.w)
             positive_value(f"motion.segments[{index}].duration", segment.duration)
+
+    def _check_length(self) -> None:
+        """Refuse a duration, velocity segments or an event later than a scenario may last, before integrating."""
+        longest = self._longest
+        beyond = f"longer than {longest:g} s, the most a scenario may last{self._longest_why}"
+        if self.duration is not None and float(self.duration) > longest:
+            raise ScenarioError(f"duration {self.duration!r} s is {beyond}")
+        if self.duration is None and self.motion is not None and self.motion.segments:
+            total = sum(float(segment.duration) for segment in self.motion.segments)
+            if total > longest:
+                raise ScenarioError(f"motion.segments last {total!r} s, {beyond}")
+        for kind, times in (("kidnappings", [k.time for k in self.kidnappings]),
+                            ("map_changes", [c.time for c in self.map_changes]),
+                            ("reinitializations", [r.time for r in self.reinitializations])):
+            for index, time in enumerate(times):
+                if float(time) > longest:
+                    raise ScenarioError(f"{kind}[{index}].time {time!r} s is after {longest:g} s, the most "
+                                        f"a scenario may last{self._longest_why}")
+
+    @property
+    def _longest(self) -> float:
+        """The most a scenario may last [s]: ``MAX_DURATION_S``, and ``MAX_STEPS`` laser steps at its rate."""
+        return min(MAX_DURATION_S, (MAX_STEPS - 1) * self.period)
+
+    @property
+    def _longest_why(self) -> str:
+        return f" ({MAX_DURATION_S:g} s and {MAX_STEPS} laser steps at laser.rate_hz {self.laser.rate_hz!r})"
 
     def _check_person(self, index: int, person: Person) -> None:
         positive_value(f"people[{index}].radius", person.radius)
@@ -267,9 +303,13 @@ class Scenario:
         cached = self.__dict__.get("_integrated")
         if cached is None:
             assert self.motion is not None
-            cached = self.__dict__["_integrated"] = integrate_motion(
-                self.motion, self.start, self.kidnappings, self.period, self.duration
+            cached = integrate_motion(
+                self.motion, self.start, self.kidnappings, self.period, self.duration, max_time=self._longest
             )
+            if self.duration is None and cached[0][-1] >= self._longest - 1e-9:
+                raise ScenarioError(f"motion.waypoints do not end within {self._longest:g} s, the most a scenario "
+                                    f"may last{self._longest_why}: a shorter route, shorter waits or a duration")
+            self.__dict__["_integrated"] = cached
         return cached
 
     @property

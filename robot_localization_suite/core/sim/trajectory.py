@@ -156,8 +156,10 @@ def integrate_motion(
     kidnappings: Sequence[Kidnapping],
     period: float,
     duration: float | None,
+    *,
+    max_time: float = math.inf,
 ) -> IntegratedMotion:
-    """Integrate the motion at sub-steps until it ends (or the duration passes).
+    """Integrate the motion at sub-steps until it ends (or the duration or ``max_time`` [s] passes).
 
     Returns ``(dense_times, dense_poses, step_poses, step_motion_end, step_velocity, step_kidnapped)``.
     """
@@ -178,7 +180,7 @@ def integrate_motion(
         t0 = k * dt
         motion_over = follower.done if follower is not None else t0 >= segment_ends[-1] - 1e-9
         pending_kidnap = next_kidnap < len(kidnaps)
-        if t0 >= limit - 1e-9 or (math.isinf(limit) and motion_over and not pending_kidnap):
+        if t0 >= min(limit, max_time) - 1e-9 or (math.isinf(limit) and motion_over and not pending_kidnap):
             break
         driven, turned = 0.0, 0.0
         for j in range(substeps):
