@@ -308,6 +308,7 @@ def test_start_pose_in_an_obstacle_is_refused_with_the_pose(room_scenario) -> No
             r"kidnappings\[0\]\.time 1000000000\.0 s is after 86400 s, the most a scenario may last",
         ),
         ({"odometry": {"alpha3": -1}}, r"odometry\.alpha3 must be >= 0, got -1"),
+        ({"seed": -3}, r"seed must be an integer >= 0, got -3"),
         ({"motion": {"waypoints": [[2.0, 1.0], [9.0, 1.0]]}}, r"motion\.waypoints\[1\] \[9\.0, 1\.0\] is off the map"),
         ({"motion": {"waypoints": [[2.0, 1.0]], "segments": [{"v": 1, "w": 0, "duration": 1}]}}, "exactly one"),
         (

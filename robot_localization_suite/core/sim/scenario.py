@@ -75,6 +75,8 @@ class Scenario:
     def __post_init__(self) -> None:
         object.__setattr__(self, "start", pose_value("start", list(self.start)))
         non_negative_value("robot_radius", self.robot_radius)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ScenarioError(f"seed must be an integer >= 0, got {self.seed!r}")  # numpy's SeedSequence needs it
         if self.duration is not None:
             duration = float(self.duration)
             if math.isnan(duration) or duration <= 0.0:
