@@ -342,6 +342,14 @@ def test_record_refuses_bad_input_with_a_clear_message(tmp_path: Path, capsys: p
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
+def test_record_under_a_plain_file_is_refused_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_world(tmp_path, duration=1.0, camera=False)
+    (tmp_path / "afile").write_text("")
+    for bag in (tmp_path / "afile" / "bag", tmp_path / "afile" / "sub" / "bag"):
+        assert scan_sim.main(["scan_sim", "--record", str(bag), "--ros-args", "-p", f"scenario:={path}"]) == 2
+        assert f"--record {str(bag)!r}: {str(tmp_path / 'afile')!r} is a file, not a folder" in capsys.readouterr().err
+
+
 def test_settings_from_args_read_params_files_and_overrides(tmp_path: Path) -> None:
     settings = scan_sim.settings_from_args(
         ["x", "--ros-args", "--params-file", str(ROOT / "config" / "scan_sim.yaml"), "-p", "beams:=90", "-p", "speed:=2"]

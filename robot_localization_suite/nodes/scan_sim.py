@@ -23,11 +23,12 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.errors import LocalizationSuiteError, ScenarioError, SettingsError
+from ..core.errors import BagError, LocalizationSuiteError, ScenarioError, SettingsError
 from ..core.settings import from_params, params_from_ros_args, unknown_params
 from ..core.sim.settings import ScanSimSettings
 
@@ -220,6 +221,11 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _file_in_the_way(folder: Path) -> Path | None:
+    """The plain file standing where ``folder`` or one of its parents should be, if any."""
+    return next((path for path in (folder, *folder.parents) if path.exists() and not path.is_dir()), None)
+
+
 @contextlib.contextmanager
 def _stop_on_signals() -> Iterator[Callable[[], str | None]]:
     """While recording, SIGINT and SIGTERM ask for a stop after the current step (so the bag is closed).
@@ -258,6 +264,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 settings = settings_from_args(argv)
                 if not settings.scenario:
                     raise ScenarioError("--record needs a scenario (-p scenario:=FILE)")
+                if (blocked := _file_in_the_way(Path(known.record))) is not None:
+                    raise BagError(f"--record {known.record!r}: {str(blocked)!r} is a file, not a folder")
                 from ..ros.sim_messages import make_simulator, record
 
                 record(known.record, make_simulator(settings), settings, stop_requested=stop_requested)
