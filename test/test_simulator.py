@@ -32,6 +32,7 @@ from robot_localization_suite.core.sim.config import (
 from robot_localization_suite.core.sim.scenario import Scenario
 from robot_localization_suite.core.sim.scenario_yaml import load_scenario, scenario_from_dict
 from robot_localization_suite.core.sim.simulator import Simulator, ray_circle_ranges
+from robot_localization_suite.tools import make_maps
 from robot_localization_suite.tools.make_maps import MAP_BUILDERS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -383,6 +384,24 @@ def test_committed_maps_are_what_make_maps_builds(name: str) -> None:
     built = MAP_BUILDERS[name](0.05)
     assert np.array_equal(committed.data, built.data)
     assert committed.resolution == 0.05
+
+
+@pytest.mark.parametrize("resolution", ["0", "-0.05", "nan", "1e-6", "100"])
+def test_make_maps_refuses_a_resolution_out_of_range(resolution: str, tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        make_maps.main(["--out", str(tmp_path), f"--resolution={resolution}", "corridor"])
+    assert exit_info.value.code == 2
+    assert f"argument --resolution: must be within [0.001, 0.5] m, got {resolution!r}" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_make_maps_refuses_an_out_folder_that_is_a_file(tmp_path: Path, capsys) -> None:
+    (tmp_path / "afile").write_text("")
+    for out in (tmp_path / "afile", tmp_path / "afile" / "maps"):
+        with pytest.raises(SystemExit) as exit_info:
+            make_maps.main(["--out", str(out), "corridor"])
+        assert exit_info.value.code == 2
+        assert f"--out {str(out)!r}: {str(tmp_path / 'afile')!r} is a file, not a folder" in capsys.readouterr().err
 
 
 def test_map_sizes_and_corridor_symmetry() -> None:

@@ -17,11 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.grid_map import GridMap
+from ..core.grid_map import MIN_RESOLUTION_M, GridMap
 
 __all__ = ["build_office", "build_office_changed", "build_floor", "build_corridor", "MAP_BUILDERS", "main"]
 
 OCCUPIED, FREE = 100, 0
+# Coarsest --resolution [m]: the 4 m corridor is then 8 cells across, its 0.15 m walls a cell each.
+MAX_RESOLUTION_M = 0.5
 
 
 class _Canvas:
@@ -201,17 +203,35 @@ def build_corridor(resolution: float = 0.05) -> GridMap:
 MAP_BUILDERS = {"office": build_office, "office_changed": build_office_changed, "floor": build_floor, "corridor": build_corridor}
 
 
+def _resolution(text: str) -> float:
+    """``--resolution``: a cell size [m] within ``[MIN_RESOLUTION_M, MAX_RESOLUTION_M]``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not MIN_RESOLUTION_M <= value <= MAX_RESOLUTION_M:  # NaN too
+        raise argparse.ArgumentTypeError(f"must be within [{MIN_RESOLUTION_M:g}, {MAX_RESOLUTION_M:g}] m, got {text!r}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="config/maps", help="output folder (default: config/maps)")
-    parser.add_argument("--resolution", type=float, default=0.05, help="cell size [m] (default 0.05)")
+    parser.add_argument(
+        "--resolution", type=_resolution, default=0.05,
+        help=f"cell size [m], {MIN_RESOLUTION_M:g}..{MAX_RESOLUTION_M:g} (default 0.05)",
+    )
     parser.add_argument("names", nargs="*", default=list(MAP_BUILDERS), help="maps to write (default: all)")
     options = parser.parse_args(argv)
+    out = Path(options.out)
+    blocked = next((path for path in (out, *out.parents) if path.exists() and not path.is_dir()), None)
+    if blocked is not None:
+        parser.error(f"--out {options.out!r}: {str(blocked)!r} is a file, not a folder")
     for name in options.names:
         if name not in MAP_BUILDERS:
             parser.error(f"unknown map {name!r}; choose from {sorted(MAP_BUILDERS)}")
         grid_map = MAP_BUILDERS[name](options.resolution)
-        path = grid_map.save(Path(options.out) / f"{name}.yaml")
+        path = grid_map.save(out / f"{name}.yaml")
         occupied = float(grid_map.occupied_mask.mean())
         print(f"{path}: {grid_map.width} x {grid_map.height} cells, {occupied:.1%} occupied")
     return 0
