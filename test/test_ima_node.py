@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +130,22 @@ def test_build_topomap_writes_the_map_file_and_panoramas(tmp_path: Path, repo_ro
         build_topomap.build_topomap(load_scenario(scenario_file), [("A", 2.0, 2.0)], out)
     with pytest.raises(MapError, match="nodes file"):
         build_topomap.load_nodes(tmp_path / "missing.yaml")
+
+
+def test_build_topomap_refuses_a_node_name_that_is_a_path_and_an_out_dir_that_is_a_file(
+    tmp_path: Path, repo_root: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    nodes = tmp_path / "nodes.yaml"
+    for name in ("../../evil", "a/b", ".."):  # its panorama would be written outside OUT_DIR
+        nodes.write_text(yaml.safe_dump({"nodes": [{"name": name, "x": 2.0, "y": 2.0}]}))
+        with pytest.raises(MapError, match=rf"node name {re.escape(repr(name))} is not a plain file name"):
+            build_topomap.load_nodes(nodes)
+    nodes.write_text(yaml.safe_dump({"nodes": [{"name": "A", "x": 2.0, "y": 2.0}]}))
+    (tmp_path / "afile").write_text("")
+    scenario_file = str(repo_root / "config" / "scenarios" / "lab_camera.yaml")
+    for out in (tmp_path / "afile", tmp_path / "afile" / "topo"):
+        assert build_topomap.main([scenario_file, str(out), "--nodes", str(nodes)]) == 1
+        assert f"{str(tmp_path / 'afile')!r} is a file, not a folder" in capsys.readouterr().err
 
 
 # -- the bag and the targets ----------------------------------------------------------------

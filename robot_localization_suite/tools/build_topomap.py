@@ -79,6 +79,9 @@ def load_nodes(path: str | Path) -> tuple[list[tuple[str, float, float]], float]
             name, x, y = str(entry["name"]), float(entry["x"]), float(entry["y"])
         except (TypeError, KeyError, ValueError):
             raise MapError(f"nodes file {str(path)!r}: node {index} needs name, x, y; got {entry!r}") from None
+        if name in ("", ".", "..") or Path(name).name != name:
+            raise MapError(f"nodes file {str(path)!r}: node name {name!r} is not a plain file name "
+                           "(its panorama is written as OUT_DIR/<name>.png)")
         if not (math.isfinite(x) and math.isfinite(y)):
             raise MapError(f"nodes file {str(path)!r}: node {name!r} has a non-finite position {entry!r}")
         if name in names:
@@ -200,6 +203,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--attempts", type=int, default=5, help="snapshot sequences tried per node (default 5)")
     args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
     out_dir = Path(args.out_dir)
+    blocked = next((path for path in (out_dir, *out_dir.parents) if path.exists() and not path.is_dir()), None)
+    if blocked is not None:
+        print(f"build_topomap: out_dir {args.out_dir!r}: {str(blocked)!r} is a file, not a folder", file=sys.stderr)
+        return 1
     try:
         scenario = load_scenario(args.scenario)
         nodes, heading_ref = load_nodes(args.nodes or out_dir / "nodes.yaml")
