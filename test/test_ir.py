@@ -927,3 +927,19 @@ def test_reinitialize_and_initial_pose(world: GridMap, localizer: IRLocalizer) -
     assert not tracker.initialized
     again = tracker.on_scan(scan_at(world, pose))
     assert again is not None and again.details["phase"] == "initialization"
+
+
+def test_a_scan_resampled_onto_another_fan_keeps_each_readings_own_angle(world: GridMap) -> None:
+    # A 361-beam scan on a 359-ray fan (an RPLIDAR's count varies): readings were placed at the grid angles,
+    # up to half a beam off, and the refinement fitted the pose to that distortion.
+    from robot_localization_suite.core.ir.query import resample_scan
+
+    pose = np.array([3.0, 1.5, 0.2])
+    angles = -math.pi + 2.0 * math.pi / 361 * np.arange(361)
+    ranges = RayCaster(world, max_range=SCAN_RANGE).cast(pose, angles).astype(np.float64)
+    live = resample_scan(Scan(0.0, angles, ranges, 0.05, SCAN_RANGE), FanModel(359, SCAN_RANGE, 0.05))
+    assert live.angles.size == 359 and np.all(np.isin(live.angles, angles))  # the beams' own angles
+    grid = live.offsets * (2.0 * math.pi / 359)
+    assert np.max(np.abs(live.angles - grid)) > 0.4 * (2.0 * math.pi / 361)  # not the grid's
+    hits = np.isfinite(live.ranges)
+    np.testing.assert_allclose(live.ranges[hits], ranges[np.isin(angles, live.angles)][hits])

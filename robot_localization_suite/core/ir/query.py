@@ -40,7 +40,7 @@ class LiveScan:
         codes: ``(J,)`` byte codes (see :class:`~.ir_index.FanModel`).
         valid: ``(J,)`` False for invalid readings (NaN, negative, below range_min).
         offsets: ``(J,)`` beam angles in fan rays relative to the laser heading.
-        angles: ``(J,)`` beam angles [rad] relative to the laser heading.
+        angles: ``(J,)`` angles [rad] of the beams the readings come from, relative to the laser heading.
         ranges: ``(J,)`` ranges [m] (inf no-return, NaN invalid).
         circular: the scan covers 360 degrees.
     """
@@ -60,7 +60,9 @@ class LiveScan:
 def resample_scan(scan: Scan, fan: FanModel) -> LiveScan:
     """The live scan on the fan's grid: beams ``ray_step`` apart from the first beam, nearest reading each.
 
-    Readings beyond the fan's ``max_range`` become no-returns, as in the fans.
+    Readings beyond the fan's ``max_range`` become no-returns, as in the fans. The patterns take each
+    reading at its grid place (``offsets``); its end point is at the beam's own angle (``angles``), which
+    differs by up to half a beam when the scanner's step is not a whole fraction of the fan's.
     """
     angles = np.asarray(scan.angles, dtype=np.float64)
     ranges = scan.clean_ranges()
@@ -86,7 +88,7 @@ def resample_scan(scan: Scan, fan: FanModel) -> LiveScan:
         codes=codes,
         valid=valid,
         offsets=target / step,
-        angles=target,
+        angles=angles[nearest],  # where each picked reading was taken: end points and refinement use these
         ranges=picked,
         circular=span >= 2.0 * math.pi - step / 2.0,
     )
