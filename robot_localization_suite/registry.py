@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .core.errors import SettingsError
 from .core.filter.odometry_gate import TIME_JUMP_RESET_S
 from .core.hybrid.settings import HybridSettings
 from .core.ial.settings import IALSettings
@@ -99,6 +100,18 @@ class NodeSettings(Settings):
     time_jump_reset_s: float = setting(TIME_JUMP_RESET_S, "an input stamped more than this before its stream's last "
                                        "one starts a new timeline (a bag looped, a simulator restarted)", unit="s",
                                        low=0.0, low_open=True, high=3600.0)
+
+    def validate(self) -> None:
+        """The three frames are names tf2 takes, and three different frames."""
+        frames = {"global_frame_id": self.global_frame_id, "odom_frame_id": self.odom_frame_id,
+                  "base_frame_id": self.base_frame_id}
+        for name, frame in frames.items():
+            if not frame.strip("/") or frame != frame.strip() or any(c.isspace() for c in frame):
+                raise SettingsError(f"parameter {name} must be a frame name (no spaces, not empty), got {frame!r}")
+        stripped = [frame.strip("/") for frame in frames.values()]
+        if len(set(stripped)) < 3:
+            raise SettingsError(f"global_frame_id, odom_frame_id and base_frame_id must be three different frames, "
+                                f"got {stripped[0]!r}, {stripped[1]!r}, {stripped[2]!r}")
 
     @property
     def mount(self) -> LaserMount:

@@ -132,6 +132,78 @@ def test_an_initial_pose_received_while_inactive_is_checked_at_activation_as_an_
         rclpy.try_shutdown()
 
 
+def test_a_method_rebuilt_before_the_first_scan_or_during_a_map_setup_keeps_the_mount_and_the_map() -> None:
+    # a change of sigma_hit before the first scan left the rebuilt method at mount (0, 0, 0); one during the
+    # map's setup left the map to the discarded method (every scan "before any map" after it)
+    import threading
+
+    rclpy = pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    office = office_map()
+    run = drive(office, steps=3, seed=2)
+    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200",
+                     "-p", "laser_x:=0.3", "-p", "laser_yaw:=0.4"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    try:
+        node.trigger_configure()
+        node.trigger_activate()
+        release = threading.Event()
+        set_map = node.adapter.set_map
+
+        def slow_set_map(grid_map: GridMap) -> None:
+            release.wait(60)
+            set_map(grid_map)
+
+        node.adapter.set_map = slow_set_map  # type: ignore[method-assign]
+        node._on_map(conversions.grid_map_to_msg(office, 0.0))
+        assert node._work.busy
+        assert node.set_parameters([Parameter("sigma_hit", value=0.25)])[0].successful
+        release.set()
+        assert node._work.wait(60)
+        node._after_work()  # the change, deferred to the end of the setup, is applied now
+        assert node.localizer.settings.sigma_hit == 0.25 and node.adapter.has_map
+        node._on_odom(conversions.odometry_to_msg(run.stamps[0], run.odometry[0], frame_id="odom"))
+        node._on_scan(_scan_msg(run.scans[0]))
+        assert node.adapter.mount_known and node.adapter.mount.pose.tolist() == pytest.approx([0.3, 0.0, 0.4])
+        # frames tf2 would refuse are refused here, the old ones kept
+        for name, value in (("global_frame_id", ""), ("odom_frame_id", "map"), ("base_frame_id", " base")):
+            assert not node.set_parameters([Parameter(name, value=value)])[0].successful, name
+        assert (node.node_settings.global_frame_id, node.node_settings.odom_frame_id) == ("map", "odom")
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_a_transition_the_state_has_not_is_refused_not_the_end_of_the_process() -> None:
+    # nav2's lifecycle manager asks by id; configure twice made rclpy raise out of the service (exit code 1)
+    rclpy = pytest.importorskip("rclpy")
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+
+    from robot_localization_suite.nodes.localizer_node import LocalizerNode
+
+    rclpy.init(args=["mcl_baseline"])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    try:
+        answer = node._service_change_state.callback
+
+        def ask(transition: int) -> bool:
+            request = ChangeState.Request()
+            request.transition.id = transition
+            return bool(answer(request, ChangeState.Response()).success)
+
+        assert not ask(Transition.TRANSITION_ACTIVATE)  # while unconfigured
+        assert ask(Transition.TRANSITION_CONFIGURE)
+        assert not ask(Transition.TRANSITION_CONFIGURE)  # again
+        assert ask(Transition.TRANSITION_ACTIVATE) and node.active
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
 def test_the_map_in_use_sent_again_while_another_is_set_up_is_the_one_kept() -> None:
     # map_server publishes the right map again (or a user corrects a wrong one) while a wrong one is being set
     # up: the newest map wins, though it equals the one in use when it arrives

@@ -117,6 +117,7 @@ class LocalizerNode(LifecycleNode):
                          **node_options)
         self.plugin = plugin
         self.extras = dict(extras or {})
+        self._answer_every_transition_request()
         # Before anything that may log: the core reports through Python logging (a corrupt cache, a relearning).
         self._log_handler = _RosLogHandler(self._log)
         _PACKAGE_LOGGER.addHandler(self._log_handler)
@@ -176,6 +177,9 @@ class LocalizerNode(LifecycleNode):
         """A configured node takes a change at once: node settings in place, a method's by rebuilding it."""
         if self.adapter is None:
             return  # read at configure
+        # A rebuild while a map is set up (or a scanner prepared for) would leave that work to the old method.
+        if self._when_idle("parameter change", lambda: self._apply_parameters(changed)):
+            return
         old_node, old_method = self.node_settings, self.settings
         self.node_settings, self.settings = self._read_settings(self._values())
         names = ", ".join(f"{p.name}={p.value!r}" for p in changed)
@@ -185,12 +189,35 @@ class LocalizerNode(LifecycleNode):
         self.adapter.clock.time_jump_reset_s = ns.time_jump_reset_s
         self.adapter.global_frame = ns.global_frame_id
         self.tf_buffer.tolerance_s = ns.transform_tolerance
-        mount_changed = ns.mount != old_node.mount and self.adapter.mount == old_node.mount
+        # Before the first scan the mount is not looked up yet: the rebuilt method looks it up then too.
+        known = self.adapter.mount_known
+        mount_changed = known and ns.mount != old_node.mount and self.adapter.mount == old_node.mount
         if self.settings != old_method or mount_changed:
             self.get_logger().info(f"{names}: rebuilding the method around its last pose")
-            self._build_method(mount=ns.mount if mount_changed else self.adapter.mount)
+            self._build_method(mount=(ns.mount if mount_changed else self.adapter.mount) if known else None)
         else:
             self.get_logger().info(f"{names}: in effect")
+
+    def _answer_every_transition_request(self) -> None:
+        """A ``change_state`` request for a transition the current state has not (configure twice, activate while
+        unconfigured), sent by id as nav2's lifecycle manager sends it, made rclpy raise out of the service and end
+        the process; it is refused (``success`` false) with a warning instead, as one sent by label already is."""
+        service = getattr(self, "_service_change_state", None)
+        if service is None:
+            return
+        answer = service.callback
+
+        def refusing_invalid(request: Any, response: Any) -> Any:
+            try:
+                return answer(request, response)
+            except RuntimeError as exc:  # rclpy's RCLError: "Transition is not registered"
+                state = self._state_machine.current_state[1]
+                self.get_logger().warning(f"refusing lifecycle transition {request.transition.id} "
+                                          f"({request.transition.label or 'no label'}) from state {state!r}: {exc}")
+                response.success = False
+                return response
+
+        service.callback = refusing_invalid
 
     # -- lifecycle ----------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
