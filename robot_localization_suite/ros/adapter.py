@@ -406,14 +406,6 @@ class LocalizerAdapter:
             self.log("warn", "initialpose", f"ignoring initial pose at ({float(pose[0])!r}, {float(pose[1])!r}) m: more than "
                      f"{MAX_COORDINATE_M:g} m from the origin of {frame!r}")
             return False
-        grid_map = self._current_map
-        if grid_map is not None and not bool(grid_map.in_bounds(grid_map.world_to_cell(pose[None, :2]))[0]):
-            x0, x1, y0, y1 = grid_map.extent
-            # Accepted, as nav2_amcl does (a robot may start beyond the map and drive into it), but said: a pose
-            # far off the map is more often a frame or a unit mixed up.
-            self.log("warn", "initialpose_off_map", f"initial pose at ({float(pose[0]):g}, {float(pose[1]):g}) m is "
-                     f"outside the map (x {x0:g} to {x1:g} m, y {y0:g} to {y1:g} m): no scan can confirm it there "
-                     "until the robot is on the map")
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
         then, now = self.odometry.at(stamp), self.odometry.latest
         if stamp > 0.0 and then is not None and now is not None:
@@ -440,6 +432,14 @@ class LocalizerAdapter:
         if covariance is None:
             covariance = np.diag(np.square(DEFAULT_INITIAL_STD))
         self._info("info", f"initial pose x={pose[0]:.2f} y={pose[1]:.2f} yaw={pose[2]:.2f}")
+        grid_map = self._current_map
+        if grid_map is not None and not bool(grid_map.in_bounds(grid_map.world_to_cell(pose[None, :2]))[0]):
+            x0, x1, y0, y1 = grid_map.extent
+            # Accepted, as nav2_amcl does (a robot may start beyond the map and drive into it), but said: a pose
+            # far off the map is more often a frame or a unit mixed up.
+            self.log("warn", "initialpose_off_map", f"initial pose at ({float(pose[0]):g}, {float(pose[1]):g}) m is "
+                     f"outside the map (x {x0:g} to {x1:g} m, y {y0:g} to {y1:g} m): no scan can confirm it there "
+                     "until the robot is on the map")
         self._release_odometry()  # the pose is where the robot is now: at the newest odometry
         self.localizer.set_initial_pose(compose(pose, self.mount.pose), covariance)
 
