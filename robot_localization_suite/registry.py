@@ -102,13 +102,14 @@ class NodeSettings(Settings):
                                        low=0.0, low_open=True, high=3600.0)
 
     def validate(self) -> None:
-        """The three frames are names tf2 takes, and three different frames."""
+        """The three frames are names tf2 takes (``odom``, not ``/odom``), and three different frames."""
         frames = {"global_frame_id": self.global_frame_id, "odom_frame_id": self.odom_frame_id,
                   "base_frame_id": self.base_frame_id}
         for name, frame in frames.items():
-            if not frame.strip("/") or frame != frame.strip() or any(c.isspace() for c in frame):
-                raise SettingsError(f"parameter {name} must be a frame name (no spaces, not empty), got {frame!r}")
-        stripped = [frame.strip("/") for frame in frames.values()]
+            if not frame or frame.startswith("/") or any(c.isspace() for c in frame):
+                raise SettingsError(f"parameter {name} must be a frame name as tf2 takes it (not empty, no spaces, "
+                                    f"no leading '/'), got {frame!r}")
+        stripped = list(frames.values())
         if len(set(stripped)) < 3:
             raise SettingsError(f"global_frame_id, odom_frame_id and base_frame_id must be three different frames, "
                                 f"got {stripped[0]!r}, {stripped[1]!r}, {stripped[2]!r}")

@@ -169,7 +169,8 @@ def test_a_method_rebuilt_before_the_first_scan_or_during_a_map_setup_keeps_the_
         node._on_scan(_scan_msg(run.scans[0]))
         assert node.adapter.mount_known and node.adapter.mount.pose.tolist() == pytest.approx([0.3, 0.0, 0.4])
         # frames tf2 would refuse are refused here, the old ones kept
-        for name, value in (("global_frame_id", ""), ("odom_frame_id", "map"), ("base_frame_id", " base")):
+        for name, value in (("global_frame_id", ""), ("odom_frame_id", "map"), ("base_frame_id", " base"),
+                            ("odom_frame_id", "/odom")):
             assert not node.set_parameters([Parameter(name, value=value)])[0].successful, name
         assert (node.node_settings.global_frame_id, node.node_settings.odom_frame_id) == ("map", "odom")
     finally:

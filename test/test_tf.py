@@ -64,6 +64,23 @@ def test_nan_a_non_unit_quaternion_and_an_old_transform_are_ignored_with_a_throt
     assert buffer.lookup("odom", "base_link") == pytest.approx([7.0, 0.0, 0.0])
 
 
+def test_a_refused_transform_neither_reparents_its_frame_nor_breaks_later_lookups() -> None:
+    # a flipped /tf transform for a new frame left its parent recorded without a history: KeyError out of the
+    # node's /tf callback; one at 1e15 m stayed in the history and pulled the next good pose to 0
+    buffer, logged = _buffer()
+    flipped = transform_to_msg(1.0, "odom", "mid", np.zeros(3), upside_down=True)
+    buffer.add_message(TFMessage(transforms=[flipped, transform_to_msg(1.0, "mid", "base_footprint",
+                                                                       np.array([1.0, 0.0, 0.0]))]), static=False)
+    assert buffer.chain("odom", "base_footprint") is None and buffer.lookup("odom", "base_footprint") is None
+    buffer.add_message(_tf(2.0, "odom", "base_footprint", [1.0, 0.0, 0.0]), static=False)
+    buffer.add_message(_tf(2.1, "odom", "base_footprint", [1e15, 0.0, 0.0]), static=False)
+    buffer.add_message(_tf(2.2, "odom", "base_footprint", [1.2, 0.0, 0.0]), static=False)
+    assert buffer.lookup("odom", "base_footprint", 2.2) == pytest.approx([1.2, 0.0, 0.0])
+    assert any("moves more than 1e+06 m" in text for *_, text in logged), logged
+    buffer.add_message(_tf(0.5, "elsewhere", "base_footprint", [0.0, 0.0, 0.0]), static=False)  # too old
+    assert buffer.chain("odom", "base_footprint") == ["base_footprint", "odom"]
+
+
 def test_map_to_odom_composed_with_odometry_gives_the_estimate() -> None:
     """nav2_amcl's map -> odom: the estimate (+) inverse(odometry at the scan's stamp)."""
     office = office_map()

@@ -23,6 +23,7 @@ from geometry_msgs.msg import TransformStamped
 from numpy.typing import NDArray
 
 from ..core.filter.odometry_gate import TIME_JUMP_RESET_S, OdometryGate
+from ..core.grid_map import MAX_COORDINATE_M
 from ..core.se2 import compose, inverse, quaternion_to_yaw, yaw_to_quaternion
 from .conversions import seconds_to_stamp, stamp_to_seconds
 
@@ -64,13 +65,17 @@ def transform_from_msg(msg: Any) -> PlanarTransform:
     whether the child's z axis points down).
 
     Raises:
-        TransformError: a non-finite value, or a quaternion that is not a unit one, naming the frames.
+        TransformError: a non-finite value, a translation beyond ``MAX_COORDINATE_M``, or a quaternion that is
+            not a unit one, naming the frames.
     """
     t, q = msg.transform.translation, msg.transform.rotation
     parent, child = frame_name(msg.header.frame_id), frame_name(msg.child_frame_id)
     values = [t.x, t.y, t.z, q.x, q.y, q.z, q.w]
     if not all(math.isfinite(v) for v in values):
         raise TransformError(f"transform {parent} -> {child} has a non-finite value: {values!r}")
+    if max(abs(t.x), abs(t.y)) > MAX_COORDINATE_M:
+        raise TransformError(f"transform {parent} -> {child} moves more than {MAX_COORDINATE_M:g} m: "
+                             f"({t.x!r}, {t.y!r})")
     norm = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
     if abs(norm - 1.0) > QUATERNION_TOLERANCE:
         raise TransformError(f"transform {parent} -> {child} has a quaternion of norm {norm:.4g}, not a rotation")
@@ -172,8 +177,8 @@ class TransformBuffer:
     def add(self, transform: PlanarTransform, *, static: bool) -> bool:
         """Store one transform; False when it is dropped (too old, or older than its frame's last)."""
         child = transform.child
-        self._parent[child] = transform.parent
         if static:
+            self._parent[child] = transform.parent
             self._static[child] = (transform.pose, transform.upside_down)
             self._dynamic.pop(child, None)
             return True
@@ -181,7 +186,6 @@ class TransformBuffer:
             self.log("warn", "tf_dynamic_upside_down", f"ignoring transform {transform.parent} -> {child} on /tf: its z axis "
                      "points down, which only a static transform (an upside-down laser on /tf_static) may do")
             return False
-        self._static.pop(child, None)
         history = self._dynamic.setdefault(child, OdometryGate(time_jump_s=self.time_jump_reset_s))
         newest = self._newest.get(child)
         if newest is not None and newest - self.time_jump_reset_s <= transform.stamp < newest - self.tolerance_s:
@@ -190,6 +194,8 @@ class TransformBuffer:
             return False
         if not history.add(transform.stamp, transform.pose):
             return False
+        self._parent[child] = transform.parent  # only a stored transform says who the parent is
+        self._static.pop(child, None)
         self._newest[child] = transform.stamp
         return True
 
@@ -234,7 +240,9 @@ class TransformBuffer:
             if static is None:
                 if static_only:
                     return None
-                history = self._dynamic[frame]
+                history = self._dynamic.get(frame)
+                if history is None:
+                    return None
                 link = history.latest if stamp is None else history.at(stamp)
                 if link is None:
                     return None
