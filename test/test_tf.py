@@ -79,6 +79,9 @@ def test_a_refused_transform_neither_reparents_its_frame_nor_breaks_later_lookup
     assert any("moves more than 1e+06 m" in text for *_, text in logged), logged
     buffer.add_message(_tf(0.5, "elsewhere", "base_footprint", [0.0, 0.0, 0.0]), static=False)  # too old
     assert buffer.chain("odom", "base_footprint") == ["base_footprint", "odom"]
+    # the node warns when the laser is on /tf but not below the base (a tree tf2 resolves and it does not)
+    buffer.add_message(_tf(0.0, "laser", "base_footprint2", [0.3, 0.0, 0.0]), static=True)
+    assert buffer.knows("laser") and not buffer.knows("mid") and buffer.chain("base_footprint2", "laser") is None
 
 
 def test_map_to_odom_composed_with_odometry_gives_the_estimate() -> None:

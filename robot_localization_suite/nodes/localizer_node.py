@@ -612,10 +612,18 @@ class LocalizerNode(LifecycleNode):
                            f"{laser_frame or '(no frame)'} on /tf_static before using laser_x/y/yaw")
             return None
         mount = self.node_settings.mount
-        self.get_logger().info(f"laser mount from laser_x/y/yaw ({mount.x:g} m, {mount.y:g} m, {mount.yaw:g} rad)"
-                               f"{', upside down' if mount.upside_down else ''}: " + (
-                                   f"/tf_static's {base} -> {laser_frame} is refused" if refused else
-                                   f"/tf_static has no {base} -> {laser_frame or '(no frame)'}"))
+        # A laser frame /tf knows but not below the base (its parent, or a sibling) is a tree tf2 would resolve
+        # and this lookup does not: said as a warning, since the parameters' mount may well be wrong then.
+        astray = not refused and bool(laser_frame) and self.tf_buffer.knows(laser_frame)
+        text = (f"laser mount from laser_x/y/yaw ({mount.x:g} m, {mount.y:g} m, {mount.yaw:g} rad)"
+                f"{', upside down' if mount.upside_down else ''}: " + (
+                    f"/tf_static's {base} -> {laser_frame} is refused" if refused else
+                    f"{laser_frame} is on /tf but not below {base} (the laser must be a descendant of the base)"
+                    if astray else f"/tf_static has no {base} -> {laser_frame or '(no frame)'}"))
+        if astray:
+            self.get_logger().warning(text)
+        else:
+            self.get_logger().info(text)
         return mount
 
     def _accepting(self, kind: str, what: str) -> bool:

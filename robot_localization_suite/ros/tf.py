@@ -199,6 +199,10 @@ class TransformBuffer:
         self._newest[child] = transform.stamp
         return True
 
+    def knows(self, frame: str) -> bool:
+        """Whether a stored transform names ``frame`` (as parent or child)."""
+        return frame in self._parent or frame in self._parent.values()
+
     def chain(self, parent: str, child: str) -> list[str] | None:
         """The frames from ``child`` up to ``parent`` (both included), or None when not connected."""
         frames = [child, *self.above(child)]
