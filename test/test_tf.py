@@ -79,9 +79,22 @@ def test_a_refused_transform_neither_reparents_its_frame_nor_breaks_later_lookup
     assert any("moves more than 1e+06 m" in text for *_, text in logged), logged
     buffer.add_message(_tf(0.5, "elsewhere", "base_footprint", [0.0, 0.0, 0.0]), static=False)  # too old
     assert buffer.chain("odom", "base_footprint") == ["base_footprint", "odom"]
-    # the node warns when the laser is on /tf but not below the base (a tree tf2 resolves and it does not)
-    buffer.add_message(_tf(0.0, "laser", "base_footprint2", [0.3, 0.0, 0.0]), static=True)
-    assert buffer.knows("laser") and not buffer.knows("mid") and buffer.chain("base_footprint2", "laser") is None
+    assert buffer.knows("odom") and not buffer.knows("mid")
+
+
+def test_a_mount_is_found_through_a_common_frame_as_tf2_resolves_a_tree() -> None:
+    # the laser as the base's parent, or its sibling under base_link: the node fell back to laser_x/y/yaw
+    buffer, _ = _buffer()
+    buffer.add_message(_tf(0.0, "laser", "base_footprint", [0.3, 0.0, 0.0]), static=True)
+    assert buffer.chain("base_footprint", "laser") is None
+    pose, flipped = buffer.lookup_mount("base_footprint", "laser", static_only=True)
+    assert pose == pytest.approx([-0.3, 0.0, 0.0]) and not flipped
+    buffer.add_message(_tf(0.0, "base_link", "base_fp", [0.1, 0.0, math.pi / 2]), static=True)
+    buffer.add_message(_tf(0.0, "base_link", "laser_2", [0.4, 0.2, 0.0]), static=True)
+    # laser_2 is 0.3 m along base_link's x and 0.2 m along its y from base_fp, which faces base_link's y
+    pose, flipped = buffer.lookup_mount("base_fp", "laser_2", static_only=True)
+    assert pose == pytest.approx([0.2, -0.3, -math.pi / 2]) and not flipped
+    assert buffer.lookup_mount("base_fp", "nowhere", static_only=True) is None
 
 
 def test_map_to_odom_composed_with_odometry_gives_the_estimate() -> None:

@@ -233,10 +233,27 @@ class TransformBuffer:
 
     def lookup_mount(self, parent: str, child: str, stamp: float | None = None, *,
                      static_only: bool = False) -> tuple[NDArray[np.float64], bool] | None:
-        """As :meth:`lookup`, with whether ``child`` is upside down in ``parent`` (a laser's mount)."""
+        """As :meth:`lookup`, with whether ``child`` is upside down in ``parent`` (a laser's mount).
+
+        ``child`` below ``parent``, or both below a common frame, as tf2 resolves a tree (the laser as the
+        base's parent, or its sibling under ``base_link``); not through an upside-down frame on ``parent``'s side.
+        """
         frames = self.chain(parent, child)
-        if frames is None:
+        if frames is not None:
+            return self._up(frames, stamp, static_only)
+        up_child, up_parent = [child, *self.above(child)], [parent, *self.above(parent)]
+        common = next((frame for frame in up_child if frame in up_parent), None)
+        if common is None:
             return None
+        child_in = self._up(up_child[: up_child.index(common) + 1], stamp, static_only)
+        parent_in = self._up(up_parent[: up_parent.index(common) + 1], stamp, static_only)
+        if child_in is None or parent_in is None or parent_in[1]:
+            return None
+        return compose(inverse(parent_in[0]), child_in[0]), child_in[1]
+
+    def _up(self, frames: list[str], stamp: float | None,
+            static_only: bool) -> tuple[NDArray[np.float64], bool] | None:
+        """The pose of ``frames[0]`` in ``frames[-1]`` along the chain, and whether it is upside down there."""
         pose: NDArray[np.float64] = np.zeros(3)
         upside_down = False
         for frame in frames[:-1]:  # from the child up: each link is the pose of ``frame`` in its parent
