@@ -203,6 +203,10 @@ class TransformBuffer:
         """Whether a stored transform names ``frame`` (as parent or child)."""
         return frame in self._parent or frame in self._parent.values()
 
+    def frames(self) -> set[str]:
+        """Every frame a stored transform names."""
+        return set(self._parent) | set(self._parent.values())
+
     def chain(self, parent: str, child: str) -> list[str] | None:
         """The frames from ``child`` up to ``parent`` (both included), or None when not connected."""
         frames = [child, *self.above(child)]

@@ -234,7 +234,7 @@ def _tf_odometry(path: Path, tf_msgs: list[Any], static_tf: list[Any]) -> metric
 
 
 def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) -> dict[str, LaserMount]:
-    """The laser's mount in every frame above the first scan's on the bag's ``/tf_static`` messages."""
+    """The laser's mount in every frame of the bag's ``/tf_static`` tree it can be placed in (the first scan's frame)."""
     from ...ros.bag import read_bag
     from ...ros.tf import frame_name
 
@@ -247,7 +247,7 @@ def _laser_mounts(path: Path, static_tf: list[Any], remap: Mapping[str, str]) ->
         scans.close()
     buffer = _static_tf(path, static_tf)
     mounts = {}
-    for frame in buffer.above(laser):
+    for frame in sorted(buffer.frames() - {laser}):  # above it, or beside it under a common frame (as tf2)
         found = buffer.lookup_mount(frame, laser, static_only=True)
         if found is not None:
             pose, upside_down = found
