@@ -259,6 +259,14 @@ def test_scans_from_another_laser_frame_are_named_in_a_warning() -> None:
             node._on_scan(msg)
         warned = [text for level, text in logged if level == "warn" and "laser_rear" in text]
         assert warned and "'laser'" in warned[0], logged
+        # a /tf_static that comes after the mount was taken (from the parameters here) is said, not used
+        from robot_localization_suite.ros.tf import TFMessage, transform_to_msg
+
+        if TFMessage is not None:  # tf2_msgs is built by make
+            node._on_tf_static(TFMessage(transforms=[transform_to_msg(0.0, "base_footprint", "laser",
+                                                                      np.array([0.3, 0.0, 0.0]))]))
+            assert any("/tf_static now puts laser at (0.3 m" in text for _, text in logged), logged
+            assert node.adapter.mount.x == 0.0
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

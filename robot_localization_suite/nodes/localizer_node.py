@@ -583,6 +583,18 @@ class LocalizerNode(LifecycleNode):
 
     def _on_tf_static(self, msg: Any) -> None:
         self.tf_buffer.add_message(msg, static=True)
+        if self.adapter is None or not self._mount_frame:
+            return
+        # The mount is taken once, at the first scan: a later /tf_static that moves the laser is said, not used.
+        found = self.tf_buffer.lookup_mount(self.node_settings.base_frame_id, self._mount_frame, static_only=True)
+        if found is not None:
+            pose, upside_down = found
+            used = self.adapter.mount
+            if upside_down != used.upside_down or np.abs(pose - used.pose).max() > 1e-3:
+                self.throttled("warn", "mount_moved", f"/tf_static now puts {self._mount_frame} at ({pose[0]:g} m, "
+                               f"{pose[1]:g} m, {pose[2]:g} rad){', upside down' if upside_down else ''}; the mount "
+                               f"in use, taken at the first scan, is ({used.x:g} m, {used.y:g} m, {used.yaw:g} rad): "
+                               "cleanup and configure to take the new one")
 
     def _laser_mount(self, laser_frame: str) -> LaserMount | None:
         """``base -> laser`` from /tf_static, else the laser_x/y/yaw parameters.
