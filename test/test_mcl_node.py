@@ -101,17 +101,28 @@ def test_the_node_handles_a_message_feed_and_its_services() -> None:
     assert math.isfinite(published[-1].update_ms)
 
 
-def test_an_initial_pose_received_while_inactive_is_checked_at_activation_as_an_active_nodes() -> None:
-    # A NaN pose kept for the activation used to fail it (lifecycle ERROR) at every later activation too.
+@contextlib.contextmanager
+def _mcl_node(*parameters: str) -> Iterator[Any]:
+    """An unconfigured ``mcl_baseline`` node with 500-200 particles and these ``-p`` parameters, destroyed after."""
     rclpy = pytest.importorskip("rclpy")
     from robot_localization_suite.nodes.localizer_node import LocalizerNode
 
+    args = ["max_particles:=500", "min_particles:=200", *parameters]
+    rclpy.init(args=["mcl_baseline", "--ros-args", *[part for value in args for part in ("-p", value)]])
+    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def test_an_initial_pose_received_while_inactive_is_checked_at_activation_as_an_active_nodes() -> None:
+    # A NaN pose kept for the activation used to fail it (lifecycle ERROR) at every later activation too.
     office = office_map()
     run = drive(office, steps=2, seed=2)
-    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=1000", "-p", "min_particles:=200"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
     logged: list[tuple[str, str]] = []
-    try:
+    with _mcl_node() as node:
         node.trigger_configure()
         node.adapter.log._sink = lambda level, text: logged.append((level, text))
         node.adapter.on_map_msg(conversions.grid_map_to_msg(office, 0.0))
@@ -127,9 +138,6 @@ def test_an_initial_pose_received_while_inactive_is_checked_at_activation_as_an_
         node.trigger_activate()
         assert node.active
         assert np.hypot(*(node.localizer.particles[:, :2].mean(axis=0) - run.truth[0][:2])) < 0.3
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def test_a_method_rebuilt_before_the_first_scan_or_during_a_map_setup_keeps_the_mount_and_the_map() -> None:
@@ -137,17 +145,11 @@ def test_a_method_rebuilt_before_the_first_scan_or_during_a_map_setup_keeps_the_
     # map's setup left the map to the discarded method (every scan "before any map" after it)
     import threading
 
-    rclpy = pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
-
-    from robot_localization_suite.nodes.localizer_node import LocalizerNode
 
     office = office_map()
     run = drive(office, steps=3, seed=2)
-    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200",
-                     "-p", "laser_x:=0.3", "-p", "laser_yaw:=0.4"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
-    try:
+    with _mcl_node("laser_x:=0.3", "laser_yaw:=0.4") as node:
         node.trigger_configure()
         node.trigger_activate()
         release = threading.Event()
@@ -173,22 +175,15 @@ def test_a_method_rebuilt_before_the_first_scan_or_during_a_map_setup_keeps_the_
                             ("odom_frame_id", "/odom")):
             assert not node.set_parameters([Parameter(name, value=value)])[0].successful, name
         assert (node.node_settings.global_frame_id, node.node_settings.odom_frame_id) == ("map", "odom")
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def test_a_transition_the_state_has_not_is_refused_not_the_end_of_the_process() -> None:
     # nav2's lifecycle manager asks by id; configure twice made rclpy raise out of the service (exit code 1)
-    rclpy = pytest.importorskip("rclpy")
+    pytest.importorskip("rclpy")
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
 
-    from robot_localization_suite.nodes.localizer_node import LocalizerNode
-
-    rclpy.init(args=["mcl_baseline"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
-    try:
+    with _mcl_node() as node:
         answer = node._service_change_state.callback
 
         def ask(transition: int) -> bool:
@@ -200,29 +195,21 @@ def test_a_transition_the_state_has_not_is_refused_not_the_end_of_the_process() 
         assert ask(Transition.TRANSITION_CONFIGURE)
         assert not ask(Transition.TRANSITION_CONFIGURE)  # again
         assert ask(Transition.TRANSITION_ACTIVATE) and node.active
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def test_the_map_in_use_sent_again_while_another_is_set_up_is_the_one_kept() -> None:
     # map_server publishes the right map again (or a user corrects a wrong one) while a wrong one is being set
     # up: the newest map wins, though it equals the one in use when it arrives
-    rclpy = pytest.importorskip("rclpy")
-    from robot_localization_suite.nodes.localizer_node import LocalizerNode
-
     office = office_map()
     coarse = GridMap(office.data[::4, ::4].copy(), office.resolution * 4, office.origin)
-    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
+    with _mcl_node() as node:
 
-    def settle() -> None:
-        deadline = time.monotonic() + 60.0
-        while (node._work.busy or node._pending_map is not None) and time.monotonic() < deadline:
-            time.sleep(0.02)
-            node._after_work()
+        def settle() -> None:
+            deadline = time.monotonic() + 60.0
+            while (node._work.busy or node._pending_map is not None) and time.monotonic() < deadline:
+                time.sleep(0.02)
+                node._after_work()
 
-    try:
         node.trigger_configure()
         node.trigger_activate()
         node._on_map(conversions.grid_map_to_msg(office, 0.0))
@@ -232,22 +219,14 @@ def test_the_map_in_use_sent_again_while_another_is_set_up_is_the_one_kept() -> 
         node._on_map(conversions.grid_map_to_msg(office, 0.0))
         settle()
         assert node.adapter.current_map.resolution == pytest.approx(office.resolution)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def test_scans_from_another_laser_frame_are_named_in_a_warning() -> None:
     # the mount is looked up once; a second laser on the same topic used to be read with the first one's, silently
-    rclpy = pytest.importorskip("rclpy")
-    from robot_localization_suite.nodes.localizer_node import LocalizerNode
-
     office = office_map()
     run = drive(office, steps=6, seed=2)
-    rclpy.init(args=["mcl_baseline", "--ros-args", "-p", "max_particles:=500", "-p", "min_particles:=200"])
-    node = LocalizerNode(registry.plugin("mcl_baseline"))
     logged: list[tuple[str, str]] = []
-    try:
+    with _mcl_node() as node:
         node.trigger_configure()
         node.trigger_activate()
         node.throttled._sink = lambda level, text: logged.append((level, text))
@@ -267,9 +246,6 @@ def test_scans_from_another_laser_frame_are_named_in_a_warning() -> None:
                                                                       np.array([0.3, 0.0, 0.0]))]))
             assert any("/tf_static now puts laser at (0.3 m" in text for _, text in logged), logged
             assert node.adapter.mount.x == 0.0
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def test_a_new_map_reseeds_around_the_laser_pose_with_a_mount_offset() -> None:

@@ -48,7 +48,6 @@ def _parse_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
     return overrides
 
 
-
 def _at_least_one(text: str) -> int:
     """An argparse type: an integer of at least 1."""
     try:
